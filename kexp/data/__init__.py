@@ -1,0 +1,7 @@
+from .collect import DataConfig, Excitation, RegionFilter, collect
+from .dataset import DataReport, Dataset
+from .integrate import IntegrationFailure, IntegratorOptions, integrate
+from .samplers import SAMPLERS, Box, Circle, Points, make_sampler
+
+__all__ = ["DataConfig", "Excitation", "RegionFilter", "collect", "DataReport", "Dataset", "IntegrationFailure",
+           "IntegratorOptions", "integrate", "SAMPLERS", "Box", "Circle", "Points", "make_sampler"]

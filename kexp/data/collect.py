@@ -1,0 +1,137 @@
+"""collect(): simulate trajectories of a system from an initial-condition sampler and build a Dataset."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ConfigError, DataError
+from ..systems.base import ControlAffineSystem
+from .dataset import PAIR_RULES, DataReport, Dataset
+from .integrate import IntegrationFailure, IntegratorOptions, integrate
+
+
+@dataclass(frozen=True)
+class Excitation:
+    """Random piecewise-constant input, uniform in [low, high] per input, redrawn every ``hold`` samples."""
+
+    low: float = -1.0
+    high: float = 1.0
+    hold: int = 10
+
+    def __post_init__(self):
+        if not (np.isfinite(self.low) and np.isfinite(self.high) and self.low < self.high):
+            raise ConfigError(f"data.excitation: need finite low < high, got {self.low}, {self.high}")
+        if self.hold < 1:
+            raise ConfigError(f"data.excitation.hold={self.hold}: use an int >= 1")
+
+    def draw(self, n_traj: int, n_steps: int, m: int, rng) -> np.ndarray:
+        n_blocks = -(-n_steps // self.hold)
+        u = rng.uniform(self.low, self.high, (n_traj, n_blocks, m))
+        return np.repeat(u, self.hold, axis=1)[:, :n_steps]
+
+
+@dataclass(frozen=True)
+class RegionFilter:
+    """Keep samples with low ≤ x − x_eq ≤ high componentwise (None: no bound).  ``mode='mask'`` drops the samples
+    (and the pairs touching them); ``mode='drop'`` drops every trajectory that ever leaves the region."""
+
+    low: tuple[float | None, ...] | None = None
+    high: tuple[float | None, ...] | None = None
+    mode: str = "mask"
+
+    def __post_init__(self):
+        if self.mode not in ("mask", "drop"):
+            raise ConfigError(f"data.filter.mode={self.mode!r}; valid: 'mask', 'drop'")
+
+    @property
+    def active(self) -> bool:
+        return self.low is not None or self.high is not None
+
+    def _bounds(self, n):
+        def conv(b, default):
+            if b is None:
+                return np.full(n, default)
+            arr = np.array([default if v is None else float(v) for v in np.atleast_1d(np.asarray(b, dtype=object))])
+            if arr.size == 1:
+                arr = np.full(n, arr[0])
+            if arr.size != n:
+                raise ConfigError(f"data.filter bounds {b} must have {n} entries (or one)")
+            return arr
+        lo, hi = conv(self.low, -np.inf), conv(self.high, np.inf)
+        if np.any(lo >= hi):
+            raise ConfigError(f"data.filter: need low < high, got low={self.low}, high={self.high}")
+        return lo, hi
+
+    def inside(self, dx: np.ndarray) -> np.ndarray:
+        lo, hi = self._bounds(dx.shape[-1])
+        return np.all((dx >= lo) & (dx <= hi), axis=-1)
+
+    def describe(self, n) -> str:
+        if not self.active:
+            return "none"
+        lo, hi = self._bounds(n)
+        return " × ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi))
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``."""
+
+    T: float = 10.0
+    dt: float = 0.01
+    seed: int = 0
+    pairs: str = "next"
+    excitation: Excitation | None = None
+    filter: RegionFilter = field(default_factory=RegionFilter)
+    integrator: IntegratorOptions = field(default_factory=IntegratorOptions)
+
+    def __post_init__(self):
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ConfigError(f"data.dt={self.dt}: the sampling time must be > 0")
+        if not (np.isfinite(self.T) and self.T >= self.dt):
+            raise ConfigError(f"data.T={self.T}: the duration must be >= dt={self.dt}")
+        if self.pairs not in PAIR_RULES:
+            raise ConfigError(f"data.pairs={self.pairs!r}; valid: {PAIR_RULES}")
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.T / self.dt))
+
+
+def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfig()) -> Dataset:
+    """Simulate ``sampler.n_traj`` trajectories of ``system`` (unforced, or under ``config.excitation``) for
+    ``config.T`` seconds sampled every ``config.dt``; apply the region filter; return a :class:`Dataset`."""
+    xe = np.asarray(system.equilibrium, dtype=float)
+    x0 = sampler.sample(xe, config.seed)
+    t = np.arange(config.n_steps + 1) * config.dt
+    u = None
+    if config.excitation is not None:
+        rng = np.random.default_rng([config.seed, 1])
+        u = config.excitation.draw(x0.shape[0], config.n_steps, system.m, rng)
+    try:
+        x = integrate(system, x0, t, u, config.integrator)
+    except IntegrationFailure as exc:
+        raise DataError(f"data collection: {exc}; shrink the initial-condition region or duration") from None
+    valid = np.ones(x.shape[:2], dtype=bool)
+    n_dropped = 0
+    if config.filter.active:
+        inside = config.filter.inside(x - xe)
+        if config.filter.mode == "mask":
+            valid = inside
+        else:
+            keep = inside.all(axis=1)
+            n_dropped = int((~keep).sum())
+            x, valid = x[keep], inside[keep]
+            u = None if u is None else u[keep]
+    if x.shape[0] == 0 or not valid.any():
+        raise DataError("data collection: the filter removed every sample; widen data.filter or move the "
+                        "initial conditions inside it")
+    fx = system.drift(x) if config.pairs == "euler" else None
+    ds = Dataset(t=t, x=x, valid=valid, dt=config.dt, pair_rule=config.pairs, system_name=system.name, u=u, fx=fx)
+    report = DataReport(n_traj=int(x0.shape[0]), n_samples=int(valid.size), n_pairs=ds.n_pairs,
+                        n_masked_samples=int((~valid).sum()), n_dropped_traj=n_dropped,
+                        filter=config.filter.mode if config.filter.active else "none",
+                        region=config.filter.describe(system.n))
+    object.__setattr__(ds, "report", report)
+    return ds

@@ -1,0 +1,139 @@
+"""The Dataset: sampled trajectories plus the masks and pair rule that turn them into snapshot pairs.
+
+Shapes (time-first inside a trajectory): ``x`` (n_traj, T+1, n); ``u`` (n_traj, T, m) or None (unforced);
+``valid`` (n_traj, T+1) marks samples kept by the filters; ``fx`` (n_traj, T+1, n), F at each sample, only for
+Euler pairs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import ConfigError, DataError
+
+PAIR_RULES = ("next", "euler")
+
+
+def _frozen(a):
+    if a is None:
+        return None
+    a = np.array(a, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class DataReport:
+    """What collection and filtering did: counts for the summary."""
+
+    n_traj: int
+    n_samples: int
+    n_pairs: int
+    n_masked_samples: int
+    n_dropped_traj: int
+    filter: str
+    region: str
+
+    def lines(self) -> list[str]:
+        return [f"trajectories: {self.n_traj} ({self.n_dropped_traj} dropped by the filter)",
+                f"samples: {self.n_samples} ({self.n_masked_samples} masked: {self.filter}, region {self.region})",
+                f"snapshot pairs: {self.n_pairs}"]
+
+
+@dataclass(frozen=True)
+class Dataset:
+    t: np.ndarray
+    x: np.ndarray
+    valid: np.ndarray
+    dt: float
+    pair_rule: str
+    system_name: str
+    u: np.ndarray | None = None
+    fx: np.ndarray | None = None
+    report: DataReport | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        for name in ("t", "x", "valid", "u", "fx"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+        if self.x.ndim != 3:
+            raise DataError(f"Dataset.x must have shape (n_traj, T+1, n), got {self.x.shape}")
+        if self.valid.shape != self.x.shape[:2]:
+            raise DataError(f"Dataset.valid shape {self.valid.shape} must equal x.shape[:2] = {self.x.shape[:2]}")
+        if self.pair_rule not in PAIR_RULES:
+            raise ConfigError(f"data.pairs={self.pair_rule!r}; valid: {PAIR_RULES}")
+        if self.pair_rule == "euler" and self.fx is None:
+            raise DataError("Euler pairs need F(x) at the samples (fx)")
+        if self.u is not None and self.u.shape[:2] != (self.x.shape[0], self.x.shape[1] - 1):
+            raise DataError(f"Dataset.u shape {self.u.shape} must be (n_traj, T, m)")
+
+    @property
+    def n_traj(self) -> int:
+        return self.x.shape[0]
+
+    @property
+    def n(self) -> int:
+        return self.x.shape[2]
+
+    @property
+    def forced(self) -> bool:
+        return self.u is not None and bool(np.any(self.u != 0))
+
+    def pair_mask(self) -> np.ndarray:
+        """(n_traj, T) for 'next' pairs (x_k, x_{k+1}), (n_traj, T+1) for Euler pairs (x_k, x_k + F(x_k)Δ)."""
+        if self.pair_rule == "next":
+            return self.valid[:, :-1] & self.valid[:, 1:]
+        return self.valid.copy()
+
+    @property
+    def n_pairs(self) -> int:
+        return int(self.pair_mask().sum())
+
+    def iter_pairs(self, chunk_size: int = 20000) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Yield (X, Y) chunks of at most ``chunk_size`` snapshot pairs, each (rows, n); memory O(chunk_size)."""
+        if chunk_size < 1:
+            raise ConfigError(f"chunk_size={chunk_size}: use an int >= 1")
+        mask = self.pair_mask()
+        bx, by, count = [], [], 0
+        for i in range(self.n_traj):
+            k = np.flatnonzero(mask[i])
+            if k.size == 0:
+                continue
+            xi = self.x[i, k]
+            yi = self.x[i, k + 1] if self.pair_rule == "next" else xi + self.dt * self.fx[i, k]
+            start = 0
+            while start < k.size:
+                take = min(chunk_size - count, k.size - start)
+                bx.append(xi[start:start + take])
+                by.append(yi[start:start + take])
+                count += take
+                start += take
+                if count == chunk_size:
+                    yield np.concatenate(bx), np.concatenate(by)
+                    bx, by, count = [], [], 0
+        if count:
+            yield np.concatenate(bx), np.concatenate(by)
+
+    def valid_samples(self) -> np.ndarray:
+        """All kept samples, (n_valid, n)."""
+        return self.x[self.valid]
+
+    def subset(self, traj: np.ndarray) -> "Dataset":
+        traj = np.asarray(traj)
+        return replace(self, x=self.x[traj], valid=self.valid[traj],
+                       u=None if self.u is None else self.u[traj],
+                       fx=None if self.fx is None else self.fx[traj])
+
+    def split(self, holdout: float, seed: int = 0) -> tuple["Dataset", "Dataset | None"]:
+        """Split by trajectories into (train, test); test has round(holdout·n_traj) trajectories (at least 1 if
+        holdout > 0 and n_traj ≥ 2)."""
+        if not 0 <= holdout < 1:
+            raise ConfigError(f"data.holdout={holdout}: use a fraction in [0, 1)")
+        n_test = int(round(holdout * self.n_traj))
+        if holdout > 0 and self.n_traj >= 2:
+            n_test = max(n_test, 1)
+        if n_test == 0:
+            return self, None
+        perm = np.random.default_rng(seed).permutation(self.n_traj)
+        return self.subset(np.sort(perm[n_test:])), self.subset(np.sort(perm[:n_test]))

@@ -1,0 +1,100 @@
+"""Initial-condition samplers.  Each returns an array of shape (n_traj, n), centred on the equilibrium where
+that makes sense, from ``numpy.random.default_rng(seed)`` (never global seeding)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Circle:
+    """Points on the circle (sphere for n > 2) of radius ``radius`` around ``center`` (default: equilibrium):
+    angles uniform at random, or evenly spaced with ``even=True`` (n = 2 only)."""
+
+    n_traj: int
+    radius: float
+    even: bool = False
+
+    def __post_init__(self):
+        _check_count(self.n_traj)
+        if not (np.isfinite(self.radius) and self.radius > 0):
+            raise ConfigError(f"data.sampler.radius={self.radius}: use a finite number > 0")
+
+    def sample(self, center: np.ndarray, seed: int) -> np.ndarray:
+        n = center.size
+        rng = np.random.default_rng(seed)
+        if n == 2:
+            a = (np.arange(self.n_traj) / self.n_traj * 2 * np.pi if self.even
+                 else rng.uniform(0, 2 * np.pi, self.n_traj))
+            d = np.stack([np.cos(a), np.sin(a)], axis=1)
+        else:
+            d = rng.normal(size=(self.n_traj, n))
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return center + self.radius * d
+
+
+@dataclass(frozen=True)
+class Box:
+    """Uniform samples in the box [low, high] (per state; a scalar applies to all states)."""
+
+    n_traj: int
+    low: tuple[float, ...] | float
+    high: tuple[float, ...] | float
+
+    def __post_init__(self):
+        _check_count(self.n_traj)
+        lo, hi = np.atleast_1d(self.low).astype(float), np.atleast_1d(self.high).astype(float)
+        if lo.shape != hi.shape and lo.size != 1 and hi.size != 1:
+            raise ConfigError(f"data.sampler low={self.low} and high={self.high} must have the same length")
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
+            raise ConfigError(f"data.sampler: need finite low < high, got low={self.low}, high={self.high}")
+
+    def sample(self, center: np.ndarray, seed: int) -> np.ndarray:
+        n = center.size
+        lo = np.broadcast_to(np.atleast_1d(self.low).astype(float), (n,))
+        hi = np.broadcast_to(np.atleast_1d(self.high).astype(float), (n,))
+        return np.random.default_rng(seed).uniform(lo, hi, (self.n_traj, n))
+
+
+@dataclass(frozen=True)
+class Points:
+    """An explicit list of initial conditions (n_traj, n)."""
+
+    points: tuple[tuple[float, ...], ...]
+
+    def __post_init__(self):
+        p = np.asarray(self.points, dtype=float)
+        if p.ndim != 2 or p.shape[0] < 1:
+            raise ConfigError(f"data.sampler.points must be a non-empty list of states, got shape {p.shape}")
+        if not np.all(np.isfinite(p)):
+            raise ConfigError("data.sampler.points contain NaN/inf; give finite initial conditions")
+
+    @property
+    def n_traj(self) -> int:
+        return len(self.points)
+
+    def sample(self, center: np.ndarray, seed: int) -> np.ndarray:
+        p = np.asarray(self.points, dtype=float)
+        if p.shape[1] != center.size:
+            raise ConfigError(f"data.sampler.points have {p.shape[1]} components; the system has n={center.size}")
+        return p.copy()
+
+
+def _check_count(n_traj):
+    if not (isinstance(n_traj, (int, np.integer)) and n_traj >= 1):
+        raise ConfigError(f"data.sampler.n_traj={n_traj!r}: use an int >= 1")
+
+
+SAMPLERS = {"circle": Circle, "box": Box, "points": Points}
+
+
+def make_sampler(kind: str, **params):
+    if kind not in SAMPLERS:
+        raise ConfigError(f"unknown sampler {kind!r}; valid: {sorted(SAMPLERS)}")
+    try:
+        return SAMPLERS[kind](**params)
+    except TypeError as exc:
+        raise ConfigError(f"sampler {kind!r}: bad parameters {params} ({exc})") from None

@@ -1,0 +1,21 @@
+"""kexp's exceptions.  Each message is one line that names what is wrong and what would be valid."""
+
+
+class KexpError(Exception):
+    """Base of every error kexp raises on purpose."""
+
+
+class ConfigError(KexpError, ValueError):
+    """A setting or argument is invalid; the message names the key, the value and what is valid."""
+
+
+class SystemDefinitionError(ConfigError):
+    """A system's definition or its F/G output is unusable."""
+
+
+class DataError(KexpError, ValueError):
+    """Data cannot support the requested computation (too few samples, non-finite values, ...)."""
+
+
+class ModelFileError(KexpError, OSError):
+    """A model file is missing, corrupt, or from another format version."""

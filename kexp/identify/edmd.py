@@ -1,0 +1,155 @@
+"""Streamed least squares for EDMD.
+
+One pass over snapshot-pair chunks reduces the tall matrix A = [Φ_X | Φ_Y | Lφ_1 … Lφ_m] (one sample a row;
+Lφ_i = (∂φ/∂x)·G_i, the dictionary's Lie derivative along input field i) to a triangular factor R with
+RᵀR = AᵀA, in memory independent of the number of pairs:
+- ``method="qr"`` (default): TSQR, R ← qr([R; chunk]); the solve sees Φ_X's own conditioning.
+- ``method="gram"``: accumulate AᵀA, then Cholesky (normal equations: cheaper, squares the condition number).
+
+Everything after the pass works on R.  Writing R = [[R11, R1t], [0, Rout]] (R11 is N×N), the least-squares
+coefficients of a target block are R11⁻¹R1t and the norm of its part outside span(Φ_X) is ‖Rout‖.
+Returned K follows the paper: φ(y) ≈ K φ(x); D_i: Lφ_i ≈ D_i φ.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import ConfigError, DataError
+
+METHODS = ("qr", "gram")
+
+
+class _StreamedQR:
+    def __init__(self, width: int):
+        self.width = width
+        self.r = np.zeros((0, width))
+
+    def add(self, block: np.ndarray) -> None:
+        stacked = np.vstack([self.r, block])
+        self.r = sla.qr(stacked, mode="r", overwrite_a=True, check_finite=False)[0][: self.width]
+
+    def factor(self) -> np.ndarray:
+        r = np.zeros((self.width, self.width))
+        r[: self.r.shape[0]] = self.r
+        return r
+
+
+class _StreamedGram:
+    def __init__(self, width: int):
+        self.g = np.zeros((width, width))
+
+    def add(self, block: np.ndarray) -> None:
+        self.g += block.T @ block
+
+    def factor(self) -> np.ndarray:
+        g = 0.5 * (self.g + self.g.T)
+        jitter = 0.0
+        for _ in range(8):
+            try:
+                return sla.cholesky(g + jitter * np.eye(len(g)), lower=False)
+            except np.linalg.LinAlgError:
+                jitter = max(jitter * 100, 1e-15 * np.trace(g))
+        raise DataError("the Gram matrix is not positive definite even with jitter; use identification.method=qr")
+
+
+@dataclass(frozen=True)
+class LeastSquaresFit:
+    """Triangular factor of [Φ_X | Φ_Y | Lφ_1 … Lφ_m] and what follows from it.  ``R`` is (W, W) with
+    W = N(2 + m); ``rcond`` truncates singular values of Φ_X below rcond·σ_max."""
+
+    R: np.ndarray
+    N: int
+    m: int
+    n_pairs: int
+    method: str
+    rcond: float
+
+    @property
+    def r11(self) -> np.ndarray:
+        """(N, N) with r11ᵀr11 = Φ_XᵀΦ_X, so ‖Φ_X w‖ = ‖r11 w‖."""
+        return self.R[: self.N, : self.N]
+
+    def _block(self, j: int) -> slice:
+        return slice((1 + j) * self.N, (2 + j) * self.N)
+
+    def inside(self, j: int) -> np.ndarray:
+        """(N, N): target block j (0: Φ_Y, 1+i: Lφ_i) in span(Φ_X), as R coordinates (Q₁ᵀ·target)."""
+        return self.R[: self.N, self._block(j)]
+
+    def outside(self, j: int) -> np.ndarray:
+        """(W − N, N): the part of target block j orthogonal to span(Φ_X)."""
+        return self.R[self.N:, self._block(j)]
+
+    def singular_values(self) -> np.ndarray:
+        return sla.svdvals(self.r11)
+
+    @property
+    def cond(self) -> float:
+        sv = self.singular_values()
+        return float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+
+    @property
+    def rank(self) -> int:
+        sv = self.singular_values()
+        return int(np.sum(sv > self.rcond * sv[0]))
+
+    def solve(self, lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """Least squares min ‖lhs·X − rhs‖ with the fit's rcond (lhs, rhs in R coordinates)."""
+        return sla.lstsq(lhs, rhs, cond=self.rcond, check_finite=False)[0]
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.solve(self.r11, self.inside(0)).T
+
+    @property
+    def D(self) -> np.ndarray:
+        return np.stack([self.solve(self.r11, self.inside(1 + i)).T for i in range(self.m)]) if self.m \
+            else np.zeros((0, self.N, self.N))
+
+    def relative_residual(self, j: int, T: np.ndarray | None = None) -> float:
+        """‖part of target block j (times T) outside span(Φ_X)‖ / ‖target block j (times T)‖."""
+        T = np.eye(self.N) if T is None else T
+        out = np.linalg.norm(self.outside(j) @ T)
+        tot = np.hypot(np.linalg.norm(self.inside(j) @ T), out)
+        return float(out / tot) if tot > 0 else 0.0
+
+
+def fit_least_squares(chunks: Iterable[tuple[np.ndarray, np.ndarray]], lift: Callable[[np.ndarray], np.ndarray],
+                      *, lie_inputs: Callable[[np.ndarray], np.ndarray] | None = None, m: int = 0,
+                      method: str = "qr", rcond: float = 1e-13) -> LeastSquaresFit:
+    """One streamed pass over (X, Y) chunks (rows, n).  ``lift(X)`` -> (rows, N); ``lie_inputs(X)`` ->
+    (rows, N, m), the dictionary's Lie derivatives along the m input fields (omit for K only)."""
+    if method not in METHODS:
+        raise ConfigError(f"identification.method={method!r}; valid: {METHODS}")
+    if not 0 < rcond < 1:
+        raise ConfigError(f"identification.rcond={rcond}: use a number in (0, 1)")
+    m = m if lie_inputs is not None else 0
+    acc, n_pairs, N = None, 0, 0
+    for X, Y in chunks:
+        X = np.asarray(X, dtype=float)
+        Y = np.asarray(Y, dtype=float)
+        if X.shape != Y.shape or X.ndim != 2:
+            raise DataError(f"pair chunk shapes X {X.shape}, Y {Y.shape}: both must be (rows, n)")
+        if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+            raise DataError("snapshot pairs contain NaN/inf; filter the data (data.filter) or fix the system")
+        px = lift(X)
+        parts = [px, lift(Y)]
+        if m:
+            lg = lie_inputs(X)
+            parts += [lg[:, :, i] for i in range(m)]
+        block = np.hstack(parts)
+        if acc is None:
+            N = px.shape[1]
+            acc = _StreamedQR(block.shape[1]) if method == "qr" else _StreamedGram(block.shape[1])
+        acc.add(block)
+        n_pairs += X.shape[0]
+    if acc is None or n_pairs == 0:
+        raise DataError("no snapshot pairs: collect more data or loosen data.filter")
+    if n_pairs < N:
+        raise DataError(f"{n_pairs} snapshot pairs for a dictionary of {N} functions: need at least {N} "
+                        "(more trajectories, a longer duration, or a lower degree)")
+    return LeastSquaresFit(R=acc.factor(), N=N, m=m, n_pairs=n_pairs, method=method, rcond=rcond)

@@ -1,0 +1,164 @@
+"""identify(): the front door from a Dataset to a KoopmanBilinearModel.
+
+EDMD by streamed least squares → eigenfunctions (left eigenvectors) and continuous eigenvalues → real
+canonical transform and block-diagonal Λ → optional selection of well-predicting eigenfunctions →
+B_i, b_i by projection of L_{G_i}Ψ → C → held-out prediction errors, all in ``model.report``.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..data.dataset import Dataset
+from ..dictionary import Monomials
+from ..errors import ConfigError, DataError
+from ..systems.base import ControlAffineSystem
+from .edmd import METHODS, fit_least_squares
+from .eigen import IdentificationWarning, eigenfunctions
+from .model import KoopmanBilinearModel
+from .projection import input_matrices, output_matrix_exact, output_matrix_lstsq
+from .quality import eigenfunction_residuals, prediction_error
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """Settings of identification.
+
+    method: 'qr' (streamed TSQR, default) or 'gram' (normal equations).  rcond: relative singular-value cut-off
+    of Φ_X.  chunk_size: pairs per streamed chunk.  on_invalid: 'error' | 'drop' for eigenvalues without a
+    logarithm.  keep: keep at most this many eigen-coordinates, best residual first (pairs stay together; the
+    constant eigenfunction is never a coordinate).  max_residual: drop eigenfunctions whose relative residual
+    over ``residual_horizon`` seconds exceeds this.  holdout: fraction of trajectories held out for the quality
+    report (and the residual ranking).  prediction_horizon: seconds, for the long prediction error.
+    """
+
+    method: str = "qr"
+    rcond: float = 1e-13
+    chunk_size: int = 20000
+    on_invalid: str = "error"
+    keep: int | None = None
+    max_residual: float | None = None
+    residual_horizon: float = 0.1
+    holdout: float = 0.2
+    holdout_seed: int = 0
+    prediction_horizon: float = 1.0
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ConfigError(f"identification.method={self.method!r}; valid: {METHODS}")
+        if not 0 < self.rcond < 1:
+            raise ConfigError(f"identification.rcond={self.rcond}: use a number in (0, 1)")
+        if self.chunk_size < 1:
+            raise ConfigError(f"identification.chunk_size={self.chunk_size}: use an int >= 1")
+        if self.on_invalid not in ("error", "drop"):
+            raise ConfigError(f"identification.on_invalid={self.on_invalid!r}; valid: 'error', 'drop'")
+        if self.keep is not None and self.keep < 1:
+            raise ConfigError(f"identification.keep={self.keep}: use an int >= 1 or null (keep all)")
+        if self.max_residual is not None and not self.max_residual > 0:
+            raise ConfigError(f"identification.max_residual={self.max_residual}: use a number > 0 or null")
+        if not self.residual_horizon > 0 or not self.prediction_horizon > 0:
+            raise ConfigError("identification.residual_horizon and prediction_horizon must be > 0 seconds")
+        if not 0 <= self.holdout < 1:
+            raise ConfigError(f"identification.holdout={self.holdout}: use a fraction in [0, 1)")
+
+
+def auto_scale(dataset: Dataset) -> tuple[float, ...]:
+    """Per-state scale for the dictionary: the largest |x_i| over kept samples (1 where that is 0)."""
+    s = np.abs(dataset.valid_samples()).max(axis=0)
+    return tuple(float(v) if v > 0 else 1.0 for v in s)
+
+
+def _select(eig, residual, cfg: IdentifyConfig) -> np.ndarray:
+    blocks = [idx for idx in eig.blocks() if eig.constant not in idx]
+    if cfg.max_residual is not None:
+        blocks = [idx for idx in blocks if not residual[idx[0]] > cfg.max_residual]
+    if cfg.keep is not None:
+        blocks.sort(key=lambda idx: (np.nan_to_num(residual[idx[0]], nan=np.inf), idx[0]))
+        chosen, count = [], 0
+        for idx in blocks:
+            if count + idx.size <= cfg.keep:
+                chosen.append(idx)
+                count += idx.size
+        blocks = chosen
+    if not blocks:
+        raise ConfigError("eigenfunction selection kept nothing; raise identification.keep or max_residual")
+    return np.sort(np.concatenate(blocks))
+
+
+def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomials,
+             config: IdentifyConfig = IdentifyConfig()) -> KoopmanBilinearModel:
+    """Identify the bilinear Koopman model of ``system`` from the unforced ``dataset``.
+
+    F is used only through the data; G_i (the input fields) are taken from ``system`` for B_i, b_i.
+    """
+    if dataset.forced:
+        raise DataError("identify() fits the drift from unforced data, but this dataset was collected under an "
+                        "excitation input; set data.excitation=null")
+    if dictionary.n != system.n or dataset.n != system.n:
+        raise ConfigError(f"dimension mismatch: system n={system.n}, dictionary n={dictionary.n}, data n={dataset.n}")
+    train, test = dataset.split(config.holdout, config.holdout_seed)
+    quality_data = test if test is not None else train
+    lie = lambda X: dictionary.lie(X, system.input_matrix(X))  # noqa: E731
+    fit = fit_least_squares(train.iter_pairs(config.chunk_size), dictionary.lift, lie_inputs=lie, m=system.m,
+                            method=config.method, rcond=config.rcond)
+    if fit.n_pairs < 2 * dictionary.size:
+        raise DataError(f"{fit.n_pairs} training pairs for {dictionary.size} dictionary functions: collect at least "
+                        f"{2 * dictionary.size} (more trajectories or a longer duration) or lower the degree")
+    K = fit.K
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", IdentificationWarning)
+        eig = eigenfunctions(K, fit.r11, fit.n_pairs, dataset.dt, dataset.pair_rule,
+                             constant_index=dictionary.constant_index, on_invalid=config.on_invalid)
+    notes = [str(w.message) for w in caught]
+    h_res = max(1, int(round(config.residual_horizon / dataset.dt)))
+    residual = eigenfunction_residuals(quality_data, dictionary.lift, eig.T, eig.eigenvalues, eig.block, h_res)
+    keep = _select(eig, residual, config)
+    x_eq = np.asarray(system.equilibrium, dtype=float)
+    psi0_full = dictionary.lift(x_eq)[0] @ eig.T
+    B, b, g_resid = input_matrices(fit, eig.T, keep, eig.constant, psi0_full)
+    all_kept = keep.size + (eig.constant >= 0) == eig.k and eig.k == dictionary.size
+    scale = np.ones(system.n) if dictionary.scale is None else np.asarray(dictionary.scale)
+    if all_kept:
+        C = output_matrix_exact(eig.T, keep, dictionary.linear_indices, scale)
+        c_resid = 0.0
+    else:
+        C, c_resid = output_matrix_lstsq(fit, eig.T, keep, eig.constant, psi0_full, dictionary.linear_indices,
+                                         scale, x_eq)
+    Lam = eig.Lambda[np.ix_(keep, keep)]
+    psi0 = psi0_full[keep]
+    drift = Lam @ psi0
+    report = {
+        "data": dataset.report.lines() if dataset.report else [],
+        "pair_rule": dataset.pair_rule,
+        "n_pairs_train": fit.n_pairs,
+        "n_traj_test": 0 if test is None else test.n_traj,
+        "method": fit.method,
+        "cond_phi_x": fit.cond,
+        "cond_gram": fit.cond ** 2,
+        "rank": fit.rank,
+        "dictionary_size": dictionary.size,
+        "k_fit_residual": fit.relative_residual(0),
+        "input_projection_residual": g_resid.tolist(),
+        "dictionary_lie_residual": [fit.relative_residual(1 + i) for i in range(system.m)],
+        "output_fit_residual": c_resid,
+        "constant_eigenfunction": bool(eig.constant >= 0),
+        "eigvec_cond": eig.eigvec_cond,
+        "drift_at_equilibrium": float(np.linalg.norm(drift)),
+        "drift_at_equilibrium_x": float(np.linalg.norm(C @ drift)),
+        "residual_horizon_steps": h_res,
+        "kept": int(keep.size),
+        "dropped": int(eig.k - keep.size - (eig.constant >= 0)),
+        "warnings": notes,
+    }
+    model = KoopmanBilinearModel(
+        Lambda=Lam, B=B, b=b, C=C, T=eig.T[:, keep], psi0=psi0, x_eq=x_eq, eigenvalues=eig.eigenvalues[keep],
+        discrete=eig.discrete[keep], block=eig.block[keep], residual=residual[keep], drift=drift,
+        dictionary=dictionary, dt=dataset.dt, system=system.name, state_names=tuple(system.state_names),
+        report=report)
+    h_pred = max(1, int(round(config.prediction_horizon / dataset.dt)))
+    report["prediction_error"] = {"1_step": prediction_error(model, quality_data, 1),
+                                  f"{config.prediction_horizon:g}_s": prediction_error(model, quality_data, h_pred)}
+    report["prediction_data"] = "held-out" if test is not None else "training"
+    return model

@@ -1,0 +1,50 @@
+"""A readable summary of an identified model."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def _fmt_lam(lam: complex) -> str:
+    return f"{lam.real:+.5f}" if lam.imag == 0 else f"{lam.real:+.5f} ± {abs(lam.imag):.5f}i"
+
+
+def model_summary(model) -> str:
+    r = model.report
+    lines = [f"Koopman bilinear model of {model.system}: k = {model.k} eigen-coordinates, m = {model.m} input(s), "
+             f"n = {model.n} states, Δ = {model.dt:g} s"]
+    d = model.dictionary
+    lines.append(f"dictionary: monomials up to degree {d.degree}"
+                 f"{' (weights ' + str(d.weights) + ')' if d.weights else ''}, {d.size} functions"
+                 f"{', with constant' if d.include_constant else ', no constant'}"
+                 f"{', scale ' + str(tuple(round(s, 4) for s in d.scale)) if d.scale else ''}")
+    for line in r.get("data", []):
+        lines.append("data: " + line)
+    if r:
+        lines.append(f"fit: {r['method']}, {r['n_pairs_train']} training pairs ({r['pair_rule']} pairs), "
+                     f"cond(Φ_X) = {r['cond_phi_x']:.3e} (Gram {r['cond_gram']:.3e}), rank {r['rank']}/"
+                     f"{r['dictionary_size']}, relative K residual {r['k_fit_residual']:.2e}")
+        lines.append(f"eigenfunctions: kept {r['kept']}, dropped {r['dropped']}, constant eigenfunction "
+                     f"{'found (carries the input into b)' if r['constant_eigenfunction'] else 'none'}, "
+                     f"eigenvector condition {r['eigvec_cond']:.2e}")
+        lines.append("Assumption 1 (L_G Ψ = BΨ) relative residual: "
+                     + ", ".join(f"{v:.2e}" for v in r["input_projection_residual"])
+                     + "  (dictionary-level: " + ", ".join(f"{v:.2e}" for v in r["dictionary_lie_residual"]) + ")")
+        lines.append(f"drift dropped at the equilibrium: |ΛΨ(x_eq)| = {r['drift_at_equilibrium']:.3e} "
+                     f"(in x: {r['drift_at_equilibrium_x']:.3e})")
+        pe = r.get("prediction_error", {})
+        lines.append(f"prediction error ({r.get('prediction_data', '?')} trajectories, relative RMS): "
+                     + ", ".join(f"{k.replace('_', ' ')} {v:.2%}" for k, v in pe.items()))
+        for w in r.get("warnings", []):
+            lines.append("WARNING: " + w)
+    lines.append(f"{'#':>3} {'λ (continuous)':>24} {'|λ̃|':>9} {'residual':>9}  |B z| gain")
+    shown = set()
+    for j in range(model.k):
+        b = model.block[j]
+        if b in shown:
+            continue
+        shown.add(b)
+        gain = np.linalg.norm(model.B[:, j, :]) if model.m else 0.0
+        res = model.residual[j]
+        lines.append(f"{j:>3} {_fmt_lam(model.eigenvalues[j]):>24} {abs(model.discrete[j]):9.5f} "
+                     f"{'   n/a' if np.isnan(res) else f'{res:9.2e}'}  {gain:.3g}")
+    return "\n".join(lines)

@@ -1,0 +1,156 @@
+"""The systems that ship with kexp: the paper's examples, a linear system, systems with known Koopman
+invariant subspaces, and a Duffing oscillator.  All vectorised over leading axes of ``x`` (..., n)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from ..errors import SystemDefinitionError
+from .base import ControlAffineSystem
+
+
+def _const_input(x: np.ndarray, g: np.ndarray) -> np.ndarray:
+    x = np.asarray(x)
+    return np.broadcast_to(g, x.shape[:-1] + g.shape).copy()
+
+
+@dataclass(frozen=True)
+class VanDerPol(ControlAffineSystem):
+    """Paper eq. (Van):  ẋ1 = x2,  ẋ2 = μ(1 − x1²)x2 − x1 + u.  Unstable focus at 0, limit cycle around it."""
+
+    mu: float = 1.0
+    name: ClassVar[str] = "vanderpol"
+    n: ClassVar[int] = 2
+    m: ClassVar[int] = 1
+
+    def drift(self, x):
+        x = np.asarray(x, dtype=float)
+        x1, x2 = x[..., 0], x[..., 1]
+        return np.stack([x2, self.mu * (1.0 - x1**2) * x2 - x1], axis=-1)
+
+    def input_matrix(self, x):
+        return _const_input(x, np.array([[0.0], [1.0]]))
+
+
+@dataclass(frozen=True)
+class Pendulum(ControlAffineSystem):
+    """Paper eq. (pen):  ẋ1 = x2,  ẋ2 = c·x2 − sin(x1) + u  with c = 0.01 (the paper's sign: the origin is a
+    weakly *unstable* focus, Re λ = c/2).  x1 is an angle of period 2π."""
+
+    c: float = 0.01
+    name: ClassVar[str] = "pendulum"
+    n: ClassVar[int] = 2
+    m: ClassVar[int] = 1
+
+    def drift(self, x):
+        x = np.asarray(x, dtype=float)
+        x1, x2 = x[..., 0], x[..., 1]
+        return np.stack([x2, self.c * x2 - np.sin(x1)], axis=-1)
+
+    def input_matrix(self, x):
+        return _const_input(x, np.array([[0.0], [1.0]]))
+
+    @property
+    def state_names(self):
+        return ("theta", "omega")
+
+    @property
+    def angle_period(self):
+        return (2 * np.pi, None)
+
+
+@dataclass(frozen=True)
+class Duffing(ControlAffineSystem):
+    """ẋ1 = x2,  ẋ2 = −δx2 + αx1 − βx1³ + u.  For α > 0 the origin is a saddle (unstable)."""
+
+    alpha: float = 1.0
+    beta: float = 1.0
+    delta: float = 0.5
+    name: ClassVar[str] = "duffing"
+    n: ClassVar[int] = 2
+    m: ClassVar[int] = 1
+
+    def drift(self, x):
+        x = np.asarray(x, dtype=float)
+        x1, x2 = x[..., 0], x[..., 1]
+        return np.stack([x2, -self.delta * x2 + self.alpha * x1 - self.beta * x1**3], axis=-1)
+
+    def input_matrix(self, x):
+        return _const_input(x, np.array([[0.0], [1.0]]))
+
+
+@dataclass(frozen=True)
+class Linear(ControlAffineSystem):
+    """ẋ = A x + B u.  Its Koopman eigenvalues on monomials of degree ≤ d are the sums of ≤ d eigenvalues of A."""
+
+    A: tuple = ((0.0, 1.0), (-2.0, -0.3))
+    B: tuple = ((0.0,), (1.0,))
+    name: ClassVar[str] = "linear"
+
+    def __post_init__(self):
+        a = np.asarray(self.A, dtype=float)
+        b = np.asarray(self.B, dtype=float)
+        if a.ndim != 2 or a.shape[0] != a.shape[1]:
+            raise SystemDefinitionError(f"linear system: A must be square, got shape {a.shape}")
+        if b.ndim != 2 or b.shape[0] != a.shape[0]:
+            raise SystemDefinitionError(f"linear system: B must have shape ({a.shape[0]}, m), got {b.shape}")
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            raise SystemDefinitionError("linear system: A and B must be finite")
+        object.__setattr__(self, "_a", a)
+        object.__setattr__(self, "_b", b)
+
+    @property
+    def n(self):  # type: ignore[override]
+        return self._a.shape[0]
+
+    @property
+    def m(self):  # type: ignore[override]
+        return self._b.shape[1]
+
+    def drift(self, x):
+        return np.asarray(x, dtype=float) @ self._a.T
+
+    def input_matrix(self, x):
+        return _const_input(x, self._b)
+
+
+@dataclass(frozen=True)
+class SlowManifold(ControlAffineSystem):
+    """ẋ1 = μ x1,  ẋ2 = λ(x2 − x1²)  (+ inputs).  The span of {1, x1, x2, x1²} is Koopman invariant, with
+    eigenvalues {0, μ, λ, 2μ} and eigenfunctions 1, x1, x1², x2 − λ/(λ − 2μ)·x1².  More generally, monomials
+    x1^a x2^b with a + 2b ≤ d (weighted degree, weights (1, 2)) span an invariant subspace.
+
+    ``inputs``: "x2" (G = [0, 1]ᵀ, m = 1) or "both" (G = I, m = 2); either keeps L_G of the invariant span inside it.
+    """
+
+    mu: float = -0.3
+    lam: float = -1.0
+    inputs: str = "x2"
+    name: ClassVar[str] = "slow_manifold"
+    n: ClassVar[int] = 2
+
+    def __post_init__(self):
+        if self.inputs not in ("x2", "both"):
+            raise SystemDefinitionError(f"slow_manifold: inputs={self.inputs!r}; use 'x2' or 'both'")
+        if abs(self.lam - 2 * self.mu) < 1e-12:
+            raise SystemDefinitionError("slow_manifold: lam must differ from 2*mu (resonance)")
+
+    @property
+    def m(self):  # type: ignore[override]
+        return 1 if self.inputs == "x2" else 2
+
+    def drift(self, x):
+        x = np.asarray(x, dtype=float)
+        x1, x2 = x[..., 0], x[..., 1]
+        return np.stack([self.mu * x1, self.lam * (x2 - x1**2)], axis=-1)
+
+    def input_matrix(self, x):
+        g = np.array([[0.0], [1.0]]) if self.inputs == "x2" else np.eye(2)
+        return _const_input(x, g)
+
+    def eigenpairs(self):
+        """Exact continuous eigenvalues and eigenfunction coefficients on the basis [1, x1, x2, x1²]."""
+        c = self.lam / (self.lam - 2 * self.mu)
+        return {0.0: [1, 0, 0, 0], self.mu: [0, 1, 0, 0], 2 * self.mu: [0, 0, 0, 1], self.lam: [0, 0, 1, -c]}
