@@ -24,26 +24,46 @@ METHODS = ("qr", "gram")
 
 
 class _StreamedQR:
+    """TSQR in one reusable Fortran-ordered buffer [R; chunk] factored in place by LAPACK dgeqrf, so a chunk
+    costs one buffer and no stacking copies."""
+
     def __init__(self, width: int):
         self.width = width
-        self.r = np.zeros((0, width))
+        self.r = np.zeros((width, width))
+        self._buf = None
 
-    def add(self, block: np.ndarray) -> None:
-        stacked = np.vstack([self.r, block])
-        self.r = sla.qr(stacked, mode="r", overwrite_a=True, check_finite=False)[0][: self.width]
+    def buffer(self, rows: int) -> np.ndarray:
+        """Return the (width + rows, width) work buffer whose rows [width:] receive the next chunk."""
+        if self._buf is None or self._buf.shape[0] != self.width + rows:
+            self._buf = np.empty((self.width + rows, self.width), order="F")
+        return self._buf
+
+    def factor_buffer(self) -> None:
+        buf = self._buf
+        buf[: self.width] = self.r
+        # a blocked factorisation needs a large workspace (the default minimal one runs unblocked, ~2× slower)
+        qr, _tau, _work, info = sla.lapack.dgeqrf(buf, lwork=64 * self.width, overwrite_a=1)
+        if info != 0:
+            raise DataError(f"QR factorisation failed (LAPACK info {info})")
+        self.r = np.triu(qr[: self.width])
 
     def factor(self) -> np.ndarray:
-        r = np.zeros((self.width, self.width))
-        r[: self.r.shape[0]] = self.r
-        return r
+        return self.r
 
 
 class _StreamedGram:
     def __init__(self, width: int):
+        self.width = width
         self.g = np.zeros((width, width))
+        self._buf = None
 
-    def add(self, block: np.ndarray) -> None:
-        self.g += block.T @ block
+    def buffer(self, rows: int) -> np.ndarray:
+        if self._buf is None or self._buf.shape[0] != rows:
+            self._buf = np.empty((rows, self.width), order="F")
+        return self._buf
+
+    def factor_buffer(self) -> None:
+        self.g += self._buf.T @ self._buf
 
     def factor(self) -> np.ndarray:
         g = 0.5 * (self.g + self.g.T)
@@ -137,16 +157,22 @@ def fit_least_squares(chunks: Iterable[tuple[np.ndarray, np.ndarray]], lift: Cal
         if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
             raise DataError("snapshot pairs contain NaN/inf; filter the data (data.filter) or fix the system")
         px = lift(X)
-        parts = [px, lift(Y)]
+        rows, N = X.shape[0], px.shape[1]
+        if acc is None:
+            width = N * (2 + m)
+            acc = _StreamedQR(width) if method == "qr" else _StreamedGram(width)
+        buf = acc.buffer(rows)
+        top = acc.width if method == "qr" else 0
+        buf[top:, :N] = px
+        del px
+        buf[top:, N:2 * N] = lift(Y)
         if m:
             lg = lie_inputs(X)
-            parts += [lg[:, :, i] for i in range(m)]
-        block = np.hstack(parts)
-        if acc is None:
-            N = px.shape[1]
-            acc = _StreamedQR(block.shape[1]) if method == "qr" else _StreamedGram(block.shape[1])
-        acc.add(block)
-        n_pairs += X.shape[0]
+            for i in range(m):
+                buf[top:, (2 + i) * N:(3 + i) * N] = lg[:, :, i]
+            del lg
+        acc.factor_buffer()
+        n_pairs += rows
     if acc is None or n_pairs == 0:
         raise DataError("no snapshot pairs: collect more data or loosen data.filter")
     if n_pairs < N:
