@@ -1,0 +1,140 @@
+"""Is V = zᵀPz a control Lyapunov function for the identified model?  Checked, never assumed.
+
+1. **Globally** (the paper's Proposition 1, for the homogeneous part ż = Λz + uBz as in the paper): V is a CLF
+   iff no z ≠ 0 has zᵀQ_Λz ≥ 0 and zᵀQ_{B}z = 0.  By Finsler's lemma this holds iff
+   min_μ λ_max(Q_Λ + Σ μ_i Q_{B_i}) < 0 (exact for m = 1; sufficient for m > 1), solved as a small SDP.
+2. **On the data manifold** z = Ψ(x) over a grid of x in the region of interest (the model's own V̇, the affine
+   b_i included): where L_ΛV ≥ 0, how small |L_BV| gets, and the decay rate V̇/V achieved by h.
+3. **Level sets** by sampling: r = the largest level such that every sampled x with V < r lies inside the region
+   and has V̇(h) < 0; r̂ = the largest level of sampled states in Ω_r where one sample-and-hold step of h fails to
+   decrease V (at least ``rhat_floor``·r), so that outside Ω_r̂ the held input decreases V.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CertificateReport:
+    global_holds: bool
+    global_margin: float          # min_μ λ_max(Q_Λ + Σμ_i Q_Bi) / ‖Q_Λ‖ (< 0: holds)
+    global_mu: tuple[float, ...]
+    n_samples: int
+    frac_drift_nonneg: float      # sampled x with L_ΛV ≥ 0
+    min_rel_lbv_where_drift_nonneg: float  # min ‖L_BV‖ / V over those
+    frac_decrease: float          # sampled x where V̇(h) < 0
+    decay_median: float           # median V̇/V under h (1/s)
+    decay_worst: float            # max V̇/V under h
+    holds_on_samples: bool
+    r: float
+    r_hat: float
+    frac_in_omega_r: float        # sampled x inside Ω_r
+    frac_sh_fail: float           # sampled x in Ω_r where one held step of h does not decrease V
+
+    @property
+    def verdict(self) -> str:
+        if self.global_holds:
+            return "V is a CLF of the homogeneous model (Proposition 1 holds)"
+        if self.holds_on_samples:
+            return "Proposition 1 FAILS globally, but h decreases V at every sampled state of the region"
+        return "NOT a certified CLF: Proposition 1 fails and h does not decrease V everywhere in the region"
+
+    def lines(self) -> list[str]:
+        return [f"certificate: {self.verdict}",
+                f"  Proposition 1 (Finsler): margin {self.global_margin:+.3e} (< 0 holds), μ = "
+                f"{', '.join(f'{m:.3g}' for m in self.global_mu)}",
+                f"  on z = Ψ(x), {self.n_samples} sampled x: L_ΛV ≥ 0 at {self.frac_drift_nonneg:.1%}, "
+                f"min |L_BV|/V there {self.min_rel_lbv_where_drift_nonneg:.3g}; V̇(h) < 0 at {self.frac_decrease:.1%}; "
+                f"V̇/V median {self.decay_median:.3g}, worst {self.decay_worst:.3g} 1/s",
+                f"  level sets: r = {self.r:.4g} (Ω_r holds {self.frac_in_omega_r:.1%} of the samples), "
+                f"r̂ = {self.r_hat:.4g}; held-input decrease fails at {self.frac_sh_fail:.1%} of Ω_r"]
+
+    def to_dict(self) -> dict:
+        from dataclasses import asdict
+        d = asdict(self)
+        d["global_mu"] = list(self.global_mu)
+        d["verdict"] = self.verdict
+        return d
+
+
+def finsler_margin(lyap) -> tuple[float, tuple[float, ...]]:
+    """min_μ λ_max(Q_Λ + Σ μ_i Q_{B_i}) / ‖Q_Λ‖₂ and the minimiser μ."""
+    import cvxpy as cp
+    q_lam = lyap.Q_lam
+    scale = max(np.linalg.norm(q_lam, 2), 1e-300)
+    m = lyap.m
+    mu = cp.Variable(m)
+    t = cp.Variable()
+    expr = q_lam / scale + sum(mu[i] * lyap.Q_b[i] / scale for i in range(m))
+    expr = 0.5 * (expr + expr.T)
+    # t ≥ −1 keeps the problem bounded when the condition holds (then Q_B can push λ_max down without end)
+    prob = cp.Problem(cp.Minimize(t), [t * np.eye(q_lam.shape[0]) - expr >> 0, t >= -1.0])
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # 'optimal_inaccurate' is fine: λ_max is re-evaluated below
+        prob.solve(solver="CLARABEL")
+    if prob.status not in ("optimal", "optimal_inaccurate") or mu.value is None:
+        return float("nan"), (float("nan"),) * m
+    mu_v = np.asarray(mu.value, dtype=float)
+    # evaluate the exact λ_max at the minimiser (independent of the solver's accuracy)
+    mat = q_lam / scale + np.einsum("i,ijk->jk", mu_v, lyap.Q_b / scale)
+    lmax = float(np.linalg.eigvalsh(0.5 * (mat + mat.T))[-1])
+    return lmax, tuple(float(v) for v in mu_v * 1.0)
+
+
+def region_grid(x_eq: np.ndarray, low, high, grid: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Sample states: a full grid for n ≤ 3, else 20000 uniform points.  Returns (x (M, n), on_boundary (M,))."""
+    n = x_eq.size
+    lo = np.broadcast_to(np.asarray(low, dtype=float), (n,))
+    hi = np.broadcast_to(np.asarray(high, dtype=float), (n,))
+    if n <= 3:
+        axes = [np.linspace(a, b, grid) for a, b in zip(lo, hi)]
+        pts = np.array(list(itertools.product(*axes)))
+    else:
+        pts = np.random.default_rng(seed).uniform(lo, hi, (20000, n))
+    tol = 1e-12 * np.maximum(1.0, np.abs(hi - lo))
+    boundary = np.any((np.abs(pts - lo) <= tol) | (np.abs(pts - hi) <= tol), axis=1)
+    return x_eq + pts, boundary
+
+
+def check_certificate(model, lyap, law, config) -> CertificateReport:
+    margin, mu = finsler_margin(lyap)
+    x, boundary = region_grid(model.x_eq, config.region_low, config.region_high, config.grid)
+    radius = np.max(np.abs(np.asarray(config.region_high, dtype=float) - np.asarray(config.region_low, dtype=float)))
+    keep = np.linalg.norm(x - model.x_eq, axis=1) > 1e-3 * radius
+    x, boundary = x[keep], boundary[keep]
+    z = model.lift(x)
+    V = lyap.value(z)
+    a, beta = lyap.lie(z)
+    u = law(z)
+    vdot = a + np.sum(beta * u, axis=1)
+    rate = vdot / np.maximum(V, 1e-300)
+    drift_nonneg = a >= 0
+    rel_lbv = np.linalg.norm(beta, axis=1) / np.maximum(V, 1e-300)
+    bad = vdot >= 0
+    r_candidates = [V[boundary].min() if boundary.any() else np.inf, V[bad].min() if bad.any() else np.inf]
+    r = float(min(r_candidates))
+    if not np.isfinite(r):
+        r = float(V.max())
+    inside = V < r
+    # one sample-and-hold step of h on the model, for states in Ω_r
+    r_hat = config.rhat_floor * r
+    frac_fail = 0.0
+    if inside.any():
+        zi = z[inside]
+        vplus = lyap.value(model.step_batch(zi, u[inside]))
+        fail = vplus >= V[inside]
+        frac_fail = float(fail.mean())
+        if fail.any():
+            r_hat = max(r_hat, float(V[inside][fail].max()))
+        r_hat = min(r_hat, r)
+    return CertificateReport(
+        global_holds=bool(np.isfinite(margin) and margin < 0), global_margin=float(margin), global_mu=mu,
+        n_samples=int(x.shape[0]), frac_drift_nonneg=float(drift_nonneg.mean()),
+        min_rel_lbv_where_drift_nonneg=float(rel_lbv[drift_nonneg].min()) if drift_nonneg.any() else float("nan"),
+        frac_decrease=float((~bad).mean()), decay_median=float(np.median(rate)), decay_worst=float(rate.max()),
+        holds_on_samples=bool(not bad.any()), r=r, r_hat=float(r_hat), frac_in_omega_r=float(inside.mean()),
+        frac_sh_fail=frac_fail)

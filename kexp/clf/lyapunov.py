@@ -1,0 +1,59 @@
+"""Quadratic Lyapunov function V(z) = zᵀPz on the bilinear model ż = Λz + Σ u_i(B_i z + b_i).
+
+V̇(z, u) = L_ΛV(z) + Σ_i u_i L_{B_i}V(z) with L_ΛV = zᵀ(PΛ + ΛᵀP)z and L_{B_i}V = zᵀ(PB_i + B_iᵀP)z + 2b_iᵀPz
+(the affine term b_i is what gives the input authority at z = 0).  Vectorised: z (M, k) -> (M,), (M, m).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+
+
+@dataclass(frozen=True, eq=False)
+class QuadraticLyapunov:
+    P: np.ndarray
+    Q_lam: np.ndarray   # (k, k)  PΛ + ΛᵀP
+    Q_b: np.ndarray     # (m, k, k)  PB_i + B_iᵀP
+    q_b: np.ndarray     # (m, k)  2 P b_i
+
+    @classmethod
+    def from_model(cls, model, P: np.ndarray) -> "QuadraticLyapunov":
+        P = np.asarray(P, dtype=float)
+        if P.shape != (model.k, model.k):
+            raise ConfigError(f"P has shape {P.shape}; the model needs ({model.k}, {model.k})")
+        if not np.all(np.isfinite(P)) or not np.allclose(P, P.T, atol=1e-10 * max(1.0, np.abs(P).max())):
+            raise ConfigError("P must be finite and symmetric")
+        P = 0.5 * (P + P.T)
+        if np.linalg.eigvalsh(P)[0] <= 0:
+            raise ConfigError("P must be positive definite")
+        q_lam = P @ model.Lambda + model.Lambda.T @ P
+        q_b = np.stack([P @ B + B.T @ P for B in model.B])
+        lin = np.stack([2 * P @ b for b in model.b])
+        for a in (P, q_lam, q_b, lin):
+            a.setflags(write=False)
+        return cls(P=P, Q_lam=q_lam, Q_b=q_b, q_b=lin)
+
+    @property
+    def m(self) -> int:
+        return self.Q_b.shape[0]
+
+    def value(self, z: np.ndarray) -> np.ndarray:
+        z = np.asarray(z, dtype=float)
+        return np.einsum("...i,ij,...j->...", z, self.P, z)
+
+    def gradient(self, z: np.ndarray) -> np.ndarray:
+        return 2 * np.asarray(z) @ self.P
+
+    def lie(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(L_ΛV (...,), L_BV (..., m))."""
+        z = np.asarray(z, dtype=float)
+        a = np.einsum("...i,ij,...j->...", z, self.Q_lam, z)
+        beta = np.einsum("...i,lij,...j->...l", z, self.Q_b, z) + z @ self.q_b.T
+        return a, beta
+
+    def vdot(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
+        a, beta = self.lie(z)
+        return a + np.sum(beta * np.asarray(u, dtype=float), axis=-1)

@@ -1,0 +1,131 @@
+"""CLF synthesis by the paper's SDP (eq. 40) and the certificate check.
+
+    min_{σ ≥ 0, P = Pᵀ}  σ − γ·trace(P Σ_i B_i)   s.t.  σI − (PΛ + ΛᵀP) ⪰ 0,   c_L I ⪯ P ⪯ c_U I.
+
+The problem is homogeneous in P: the optimum sits on the bounds, which act as a gain (design pitfall 6).
+Nothing here assumes the result is a CLF: :func:`check_certificate` tests it and the report is part of the
+result.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ConfigError, KexpError
+from .certificate import CertificateReport, check_certificate
+from .lyapunov import QuadraticLyapunov
+
+SOLVERS = ("CLARABEL", "SCS")
+
+
+class ClfError(KexpError, RuntimeError):
+    """The SDP failed (infeasible, unbounded, or solved too inaccurately to use)."""
+
+
+@dataclass(frozen=True)
+class ClfConfig:
+    """gamma (γ ≥ 0), c_lower/c_upper (0 < c_L < c_U) as in eq. 40; solver 'CLARABEL' (default) or 'SCS';
+    accept_inaccurate: use an 'optimal_inaccurate' P (with a warning in the report) instead of failing.
+    region_low/region_high: the box of x (relative to x_eq) where the certificate is sampled, grid points per
+    axis ``grid``; rhat_floor: r̂ is at least this fraction of r."""
+
+    gamma: float = 2.0
+    c_lower: float = 0.01
+    c_upper: float = 1.0
+    solver: str = "CLARABEL"
+    accept_inaccurate: bool = False
+    region_low: float | tuple[float, ...] = -1.0
+    region_high: float | tuple[float, ...] = 1.0
+    grid: int = 41
+    rhat_floor: float = 0.05
+
+    def __post_init__(self):
+        if not (np.isfinite(self.gamma) and self.gamma >= 0):
+            raise ConfigError(f"clf.gamma={self.gamma}: use a finite number >= 0")
+        if not (0 < self.c_lower < self.c_upper < np.inf):
+            raise ConfigError(f"clf.c_lower={self.c_lower}, clf.c_upper={self.c_upper}: need 0 < c_lower < c_upper")
+        if self.solver not in SOLVERS:
+            raise ConfigError(f"clf.solver={self.solver!r}; valid: {SOLVERS}")
+        if self.grid < 3:
+            raise ConfigError(f"clf.grid={self.grid}: use an int >= 3")
+        if not 0 < self.rhat_floor <= 1:
+            raise ConfigError(f"clf.rhat_floor={self.rhat_floor}: use a fraction in (0, 1]")
+
+
+@dataclass(frozen=True, eq=False)
+class Clf:
+    """V(z) = zᵀPz with its SDP status and certificate report.  ``r``, ``r_hat`` are sampled estimates of the
+    level sets Ω_r (h decreases V) and Ω_r̂ (sample-and-hold safe set) of the paper."""
+
+    P: np.ndarray
+    lyap: QuadraticLyapunov
+    status: str
+    solver: str
+    objective: float
+    sigma: float
+    certificate: CertificateReport
+    config: ClfConfig = field(repr=False)
+
+    @property
+    def r(self) -> float:
+        return self.certificate.r
+
+    @property
+    def r_hat(self) -> float:
+        return self.certificate.r_hat
+
+    def summary(self) -> str:
+        eig = np.linalg.eigvalsh(self.P)
+        return "\n".join([f"CLF (SDP eq. 40, {self.solver}): status {self.status}, objective {self.objective:.4g}, "
+                          f"σ = {self.sigma:.4g}, eig(P) in [{eig[0]:.4g}, {eig[-1]:.4g}]"]
+                         + self.certificate.lines())
+
+
+def solve_sdp(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float]:
+    import cvxpy as cp
+    k = model.k
+    P = cp.Variable((k, k), symmetric=True)
+    sigma = cp.Variable(nonneg=True)
+    eye = np.eye(k)
+    lam = model.Lambda
+    bsum = model.B.sum(axis=0)
+    lyap_expr = P @ lam + lam.T @ P
+    cons = [sigma * eye - 0.5 * (lyap_expr + lyap_expr.T) >> 0, P >> config.c_lower * eye, config.c_upper * eye >> P]
+    prob = cp.Problem(cp.Minimize(sigma - config.gamma * cp.trace(P @ bsum)), cons)
+    try:
+        prob.solve(solver=config.solver)
+    except cp.error.SolverError as exc:
+        raise ClfError(f"CLF SDP: solver {config.solver} failed ({exc}); try clf.solver=SCS") from None
+    status = prob.status
+    if status not in ("optimal", "optimal_inaccurate") or P.value is None:
+        raise ClfError(f"CLF SDP status {status}: check clf.c_lower < clf.c_upper and the model (finite Λ, B)")
+    if status == "optimal_inaccurate" and not config.accept_inaccurate:
+        raise ClfError("CLF SDP solved inaccurately; set clf.solver=CLARABEL, rescale the model, or accept with "
+                       "clf.accept_inaccurate=true")
+    Pv = 0.5 * (P.value + P.value.T)
+    eig = np.linalg.eigvalsh(Pv)
+    tol = 1e-6 * config.c_upper
+    if eig[0] < config.c_lower - tol or eig[-1] > config.c_upper + tol:
+        raise ClfError(f"CLF SDP returned P with eigenvalues in [{eig[0]:.3g}, {eig[-1]:.3g}], outside "
+                       f"[c_lower, c_upper] = [{config.c_lower}, {config.c_upper}]: the solve is unreliable")
+    return Pv, status, float(prob.value), float(sigma.value)
+
+
+def synthesize_clf(model, config: ClfConfig = ClfConfig(), *, law: str = "sontag", u_min=-5.0, u_max=5.0,
+                   law_params: dict | None = None) -> Clf:
+    """Solve the SDP, then check the certificate of V = zᵀPz for the explicit law ``law`` with bounds."""
+    P, status, obj, sigma = solve_sdp(model, config)
+    return clf_from_P(model, P, config, law=law, u_min=u_min, u_max=u_max, law_params=law_params,
+                      status=status, objective=obj, sigma=sigma)
+
+
+def clf_from_P(model, P, config: ClfConfig = ClfConfig(), *, law="sontag", u_min=-5.0, u_max=5.0,
+               law_params=None, status="given", objective=float("nan"), sigma=float("nan")) -> Clf:
+    """Wrap a given P (e.g. from another synthesis) with its certificate report."""
+    from ..control.laws import make_law
+    lyap = QuadraticLyapunov.from_model(model, P)
+    h = make_law(law, lyap, u_min, u_max, **(law_params or {}))
+    report = check_certificate(model, lyap, h, config)
+    return Clf(P=lyap.P, lyap=lyap, status=status, solver=config.solver, objective=objective, sigma=sigma,
+               certificate=report, config=config)

@@ -1,0 +1,7 @@
+from .laws import LAWS, LieGain, Sontag, make_law
+
+__all__ = ["LAWS", "LieGain", "Sontag", "make_law"]
+from .explicit import ExplicitController, LqrController, linearise  # noqa: E402
+from .lmpc import ControlStep, Lmpc, LmpcConfig  # noqa: E402
+
+__all__ += ["ExplicitController", "LqrController", "linearise", "ControlStep", "Lmpc", "LmpcConfig"]

@@ -1,0 +1,187 @@
+"""Compiled kernels (numba) for the LMPC: exact sample-and-hold rollout of the bilinear model and its
+sensitivities with respect to the (move-blocked) input sequence.
+
+Discretisation: for input u held over Δ the model is linear, ż = A_u z + c_u with A_u = Λ + Σu_iB_i,
+c_u = Σu_ib_i, so z⁺ = expm([[A_u, c_u], [0, 0]]Δ)·[z; 1] exactly.  The matrix exponential is a Taylor series
+with scaling and squaring, summed to machine precision (terms below 1e-16 relative).  The derivative of z⁺ with
+respect to u_i is the corresponding block of expm([[M, E_i], [0, M]]Δ)·[0; z; 1] (Van Loan), also summed to
+machine precision.  Hence the rollout and its Jacobian are exact to rounding: no discretisation error beyond
+the zero-order hold itself, which *is* the sample-and-hold of the closed loop.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def _augmented(lam, B, b, u, dt):
+    k = lam.shape[0]
+    M = np.zeros((k + 1, k + 1))
+    for r in range(k):
+        for c in range(k):
+            acc = lam[r, c]
+            for i in range(u.shape[0]):
+                acc += u[i] * B[i, r, c]
+            M[r, c] = acc * dt
+        acc = 0.0
+        for i in range(u.shape[0]):
+            acc += u[i] * b[i, r]
+        M[r, k] = acc * dt
+    return M
+
+
+@njit(cache=True)
+def _matmul(a, b):
+    n, p = a.shape
+    q = b.shape[1]
+    out = np.zeros((n, q))
+    for i in range(n):
+        for l in range(p):
+            ail = a[i, l]
+            if ail != 0.0:
+                for j in range(q):
+                    out[i, j] += ail * b[l, j]
+    return out
+
+
+@njit(cache=True)
+def expm_small(M):
+    """expm(M) by scaling and squaring of a Taylor series summed to relative 1e-16."""
+    n = M.shape[0]
+    nrm = 0.0
+    for i in range(n):
+        row = 0.0
+        for j in range(n):
+            row += abs(M[i, j])
+        nrm = max(nrm, row)
+    s = 0
+    while nrm > 0.5:
+        nrm *= 0.5
+        s += 1
+    A = M * (0.5 ** s)
+    E = np.eye(n)
+    term = np.eye(n)
+    for p in range(1, 40):
+        term = (term @ A) / p
+        E += term
+        if np.max(np.abs(term)) <= 1e-16 * np.max(np.abs(E)):
+            break
+    for _ in range(s):
+        E = E @ E
+    return E
+
+
+@njit(cache=True)
+def _dexp_vec(M, Ei, v, w, y, tw, ty, nw, ny):
+    """w ← top block of expm([[M, Ei], [0, M]])·[0; v]: the derivative of expm(M)v along Ei (M, Ei already
+    multiplied by Δ).  y, tw, ty, nw, ny are work buffers of the same length as v."""
+    n = M.shape[0]
+    nrm = 0.0
+    for i in range(n):
+        row = 0.0
+        for j in range(n):
+            row += abs(M[i, j]) + abs(Ei[i, j])
+        nrm = max(nrm, row)
+    q = 1
+    while nrm / q > 0.5:
+        q *= 2
+    inv_q = 1.0 / q
+    w[:] = 0.0
+    y[:] = v
+    for _ in range(q):
+        tw[:] = w
+        ty[:] = y
+        for p in range(1, 40):
+            scale = inv_q / p
+            big_t = 0.0
+            big_s = 0.0
+            for i in range(n):
+                aw = 0.0
+                ay = 0.0
+                for j in range(n):
+                    aw += M[i, j] * tw[j] + Ei[i, j] * ty[j]
+                    ay += M[i, j] * ty[j]
+                nw[i] = aw * scale
+                ny[i] = ay * scale
+            for i in range(n):
+                tw[i] = nw[i]
+                ty[i] = ny[i]
+                w[i] += nw[i]
+                y[i] += ny[i]
+                big_t = max(big_t, abs(nw[i]), abs(ny[i]))
+                big_s = max(big_s, abs(w[i]), abs(y[i]))
+            if big_t <= 1e-16 * big_s:
+                break
+
+
+@njit(cache=True)
+def rollout(lam, B, b, dt, z0, U, block_of_step):
+    """Z (Np+1, k): exact rollout for block inputs U (nb, m) applied per step via block_of_step (Np,)."""
+    k = lam.shape[0]
+    Np = block_of_step.shape[0]
+    Z = np.empty((Np + 1, k))
+    Z[0] = z0
+    zz = np.empty(k + 1)
+    last = -1
+    E = np.eye(k + 1)
+    for j in range(Np):
+        blk = block_of_step[j]
+        if blk != last:
+            E = expm_small(_augmented(lam, B, b, U[blk], dt))
+            last = blk
+        zz[:k] = Z[j]
+        zz[k] = 1.0
+        Z[j + 1] = (E @ zz)[:k]
+    return Z
+
+
+@njit(cache=True)
+def rollout_sensitivity(lam, B, b, dt, z0, U, block_of_step):
+    """Z (Np+1, k) and S (Np+1, k, nb·m) with S[j] = ∂z_j/∂vec(U) (U row-major: block, then input)."""
+    k = lam.shape[0]
+    m = B.shape[0]
+    Np = block_of_step.shape[0]
+    nb = U.shape[0]
+    nu = nb * m
+    Z = np.empty((Np + 1, k))
+    S = np.zeros((Np + 1, k, nu))
+    Z[0] = z0
+    zz = np.empty(k + 1)
+    last = -1
+    E = np.eye(k + 1)
+    M = np.zeros((k + 1, k + 1))
+    Ei = np.zeros((m, k + 1, k + 1))
+    for i in range(m):
+        for r in range(k):
+            for c in range(k):
+                Ei[i, r, c] = B[i, r, c] * dt
+            Ei[i, r, k] = b[i, r] * dt
+    d = np.empty(k + 1)
+    b1 = np.empty(k + 1)
+    b2 = np.empty(k + 1)
+    b3 = np.empty(k + 1)
+    b4 = np.empty(k + 1)
+    b5 = np.empty(k + 1)
+    for j in range(Np):
+        blk = block_of_step[j]
+        if blk != last:
+            M = _augmented(lam, B, b, U[blk], dt)
+            E = expm_small(M)
+            last = blk
+        zz[:k] = Z[j]
+        zz[k] = 1.0
+        Z[j + 1] = (E @ zz)[:k]
+        ncols = (blk + 1) * m
+        # S[j+1] = E_k S[j] (only the columns of blocks up to the current one are non-zero)
+        for r in range(k):
+            for c in range(ncols):
+                acc = 0.0
+                for l in range(k):
+                    acc += E[r, l] * S[j, l, c]
+                S[j + 1, r, c] = acc
+        for i in range(m):
+            _dexp_vec(M, Ei[i], zz, d, b1, b2, b3, b4, b5)
+            for r in range(k):
+                S[j + 1, r, blk * m + i] += d[r]
+    return Z, S

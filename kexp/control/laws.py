@@ -1,0 +1,86 @@
+"""Explicit stabilising laws h(z) on a quadratic Lyapunov function, vectorised over states.
+
+Every law maps z (..., k) to u (..., m), always finite and within [u_min, u_max] (componentwise clip).
+- ``sontag``: Sontag's formula (paper eq. 19), multi-input form
+  b(z) = −(a + √(a² + ‖β‖⁴)) / ‖β‖² · β  (0 where β = 0), with a = L_ΛV, β = L_BV; then saturated.
+- ``lie_gain``: h(z) = −k·L_BV(z), saturated (the paper's pendulum law; no decay guarantee).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..clf.lyapunov import QuadraticLyapunov
+from ..errors import ConfigError
+
+
+def _bounds(u_min, u_max, m):
+    lo = np.broadcast_to(np.asarray(u_min, dtype=float), (m,)).copy()
+    hi = np.broadcast_to(np.asarray(u_max, dtype=float), (m,)).copy()
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
+        raise ConfigError(f"input bounds: need finite u_min < u_max, got u_min={u_min}, u_max={u_max}")
+    lo.setflags(write=False)
+    hi.setflags(write=False)
+    return lo, hi
+
+
+@dataclass(frozen=True, eq=False)
+class Sontag:
+    lyap: QuadraticLyapunov
+    u_min: np.ndarray
+    u_max: np.ndarray
+    eps: float = 1e-14
+
+    name = "sontag"
+
+    def __post_init__(self):
+        lo, hi = _bounds(self.u_min, self.u_max, self.lyap.m)
+        object.__setattr__(self, "u_min", lo)
+        object.__setattr__(self, "u_max", hi)
+
+    def unsaturated(self, z: np.ndarray) -> np.ndarray:
+        a, beta = self.lyap.lie(z)
+        nb2 = np.sum(beta * beta, axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            coef = -(a + np.sqrt(a * a + nb2 * nb2)) / nb2
+        coef = np.where(nb2 > self.eps * np.maximum(1.0, np.abs(a)), coef, 0.0)
+        u = coef[..., None] * beta
+        return np.where(np.isfinite(u), u, 0.0)
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        return np.clip(self.unsaturated(z), self.u_min, self.u_max)
+
+
+@dataclass(frozen=True, eq=False)
+class LieGain:
+    lyap: QuadraticLyapunov
+    u_min: np.ndarray
+    u_max: np.ndarray
+    k: float = 10.0
+
+    name = "lie_gain"
+
+    def __post_init__(self):
+        if not (np.isfinite(self.k) and self.k > 0):
+            raise ConfigError(f"controller.k={self.k}: use a finite gain > 0")
+        lo, hi = _bounds(self.u_min, self.u_max, self.lyap.m)
+        object.__setattr__(self, "u_min", lo)
+        object.__setattr__(self, "u_max", hi)
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        _, beta = self.lyap.lie(z)
+        u = np.where(np.isfinite(beta), -self.k * beta, 0.0)
+        return np.clip(u, self.u_min, self.u_max)
+
+
+LAWS = {"sontag": Sontag, "lie_gain": LieGain}
+
+
+def make_law(name: str, lyap: QuadraticLyapunov, u_min, u_max, **params):
+    if name not in LAWS:
+        raise ConfigError(f"explicit law {name!r} is unknown; valid: {sorted(LAWS)}")
+    try:
+        return LAWS[name](lyap, u_min, u_max, **params)
+    except TypeError as exc:
+        raise ConfigError(f"law {name!r}: bad parameters {params} ({exc})") from None

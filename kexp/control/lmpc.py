@@ -1,0 +1,246 @@
+"""Lyapunov-based MPC (paper eq. 21) on the bilinear Koopman model, by SQP on PIQP.
+
+Decision variables: the move-blocked input sequence U (nb, m) and one slack s ≥ 0.
+    min  Δ Σ_{j=1..Np} ℓ(z_j) + Δ Σ_j u_jᵀ R u_j + w_T·V(z_Np) + ρ(s + s²)
+    s.t. z_{j+1} = exact sample-and-hold step of ż = Λz + Σu_i(B_i z + b_i)      (21b, 21c)
+         u_min ≤ u ≤ u_max                                                     (21d)
+         V(z_j) ≤ r̂ + s, j = 1..Np        if V(z_0) ≤ r̂   (inside Ω_r̂)          (21e, softened)
+         L_BV(z_0)·u_0 ≤ L_BV(z_0)·h(z_0)  if V(z_0) > r̂   (ring and outside)     (21f)
+with ℓ(z) = w‖z‖² (state_cost 'z', W = wI) or w‖Cz‖² (state_cost 'x', a cost on x through C).
+(21f) is linear in u_0 and exact; u = h(z_0) satisfies it, so the QP is feasible whenever h is within bounds.
+Outside Ω_r the paper gives no constraint; kexp keeps (21f) there too.
+
+Each SQP iteration linearises the exact rollout around the current guess (warm start: the previous solution
+shifted by one step), condenses it into a dense QP in (U, s) and solves it with PIQP.  ``max_iter = 1`` is the
+real-time iteration (one QP per step).  A failed QP falls back to h(z_0) and says why.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+from .blocking import block_of_step, block_sizes
+from .kernels import rollout, rollout_sensitivity
+from .qp import DenseQp
+
+STATE_COSTS = ("z", "x")
+
+
+@dataclass(frozen=True)
+class LmpcConfig:
+    horizon: int = 100
+    w: float = 1.0
+    r: float = 1.0
+    state_cost: str = "z"
+    terminal: float = 0.0
+    free_moves: int | None = 5
+    blocks: int | None = 20
+    max_iter: int = 1
+    tol: float = 1e-6
+    slack_weight: float = 1e4
+    use_21e: bool = True
+    use_21f: bool = True
+    qp_eps: float = 1e-8
+    qp_max_iter: int = 100
+
+    def __post_init__(self):
+        if not (isinstance(self.horizon, (int, np.integer)) and self.horizon >= 1):
+            raise ConfigError(f"lmpc.horizon={self.horizon}: use an int >= 1")
+        if not (self.w > 0 and self.r > 0 and np.isfinite(self.w) and np.isfinite(self.r)):
+            raise ConfigError(f"lmpc weights w={self.w}, r={self.r}: both must be finite and > 0")
+        if self.state_cost not in STATE_COSTS:
+            raise ConfigError(f"lmpc.state_cost={self.state_cost!r}; valid: {STATE_COSTS}")
+        if not (self.terminal >= 0 and np.isfinite(self.terminal)):
+            raise ConfigError(f"lmpc.terminal={self.terminal}: use a finite number >= 0")
+        if self.max_iter < 1:
+            raise ConfigError(f"lmpc.max_iter={self.max_iter}: use an int >= 1 (1 = real-time iteration)")
+        if not self.slack_weight > 0:
+            raise ConfigError(f"lmpc.slack_weight={self.slack_weight}: use a number > 0")
+        block_sizes(self.horizon, self.free_moves, self.blocks)  # validates the blocking
+
+
+@dataclass(frozen=True)
+class ControlStep:
+    """What a controller did at one sampling instant."""
+
+    u: np.ndarray
+    status: str              # 'solved', 'fallback', 'explicit'
+    qp_status: str
+    iterations: int          # SQP iterations
+    qp_iterations: int
+    solve_time: float        # wall-clock seconds for the whole step
+    region: str              # 'inner' (Ω_r̂), 'ring' (Ω_r∖Ω_r̂), 'outside'
+    active: str              # '21e', '21f', 'none'
+    binds: bool
+    slack: float
+    fallback: bool
+    reason: str
+    predicted: np.ndarray | None = None   # predicted z over the horizon (Np+1, k)
+
+
+def region_of(V0: float, r: float, r_hat: float) -> str:
+    return "inner" if V0 <= r_hat else ("ring" if V0 <= r else "outside")
+
+
+class Lmpc:
+    """Stateful controller: call :meth:`step` with z(t_k) each sampling instant; :meth:`reset` between runs."""
+
+    name = "lmpc"
+
+    def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, record_prediction: bool = False):
+        self.model, self.clf, self.law, self.cfg = model, clf, law, config
+        self.record_prediction = record_prediction
+        self.m, self.k = model.m, model.k
+        self.u_min = np.broadcast_to(np.asarray(u_min, float), (self.m,)).copy()
+        self.u_max = np.broadcast_to(np.asarray(u_max, float), (self.m,)).copy()
+        if not np.all(self.u_min < self.u_max):
+            raise ConfigError(f"controller bounds: need u_min < u_max, got {u_min}, {u_max}")
+        self.sizes = block_sizes(config.horizon, config.free_moves, config.blocks)
+        self.bos = block_of_step(self.sizes)
+        self.nb = len(self.sizes)
+        self.nu = self.nb * self.m
+        self.qp = DenseQp(self.nu + 1, config.horizon + 1, eps=config.qp_eps, max_iter=config.qp_max_iter)
+        self.lam = np.ascontiguousarray(model.Lambda)
+        self.B = np.ascontiguousarray(model.B)
+        self.b = np.ascontiguousarray(model.b)
+        self.P = clf.P
+        self.out = model.C if config.state_cost == "x" else None
+        self.r_diag = np.repeat(self.sizes.astype(float), self.m) * config.r
+        self.x_l = np.concatenate([np.tile(self.u_min, self.nb), [0.0]])
+        self.x_u = np.concatenate([np.tile(self.u_max, self.nb), [np.inf]])
+        self.reset()
+
+    def reset(self) -> None:
+        self._useq = np.zeros((self.cfg.horizon, self.m))  # per-step guess
+
+    def _blocks_from_steps(self, useq: np.ndarray) -> np.ndarray:
+        starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]])
+        return np.ascontiguousarray(useq[starts])
+
+    # -- cost and constraints -------------------------------------------------------------------------------
+    def _exact_cost(self, Z, U, s) -> float:
+        cfg, dt = self.cfg, self.model.dt
+        zz = Z[1:] if self.out is None else Z[1:] @ self.out.T
+        cost = dt * cfg.w * float(np.sum(zz * zz)) + dt * float(np.sum(self.r_diag * (U.reshape(-1) ** 2)))
+        cost += cfg.terminal * float(Z[-1] @ self.P @ Z[-1])
+        return cost + cfg.slack_weight * (s + s * s)
+
+    def _qp_data(self, z0, Ubar, active, rhs_21f, beta0):
+        cfg, dt = self.cfg, self.model.dt
+        Z, S = rollout_sensitivity(self.lam, self.B, self.b, dt, z0, Ubar, self.bos)
+        ub = Ubar.reshape(-1)
+        Sj = S[1:]                                   # (Np, k, nu)
+        c = Z[1:] - Sj @ ub                          # affine part: z_j ≈ c_j + S_j U
+        if self.out is not None:
+            Sx = np.einsum("nk,jku->jnu", self.out, Sj)
+            cx = c @ self.out.T
+        else:
+            Sx, cx = Sj, c
+        flat = Sx.reshape(-1, self.nu)
+        H = np.zeros((self.nu + 1, self.nu + 1))
+        g = np.zeros(self.nu + 1)
+        H[: self.nu, : self.nu] = 2 * dt * cfg.w * (flat.T @ flat) + np.diag(2 * dt * self.r_diag)
+        g[: self.nu] = 2 * dt * cfg.w * (flat.T @ cx.reshape(-1))
+        if cfg.terminal > 0:
+            sn = S[-1]
+            H[: self.nu, : self.nu] += 2 * cfg.terminal * sn.T @ self.P @ sn
+            g[: self.nu] += 2 * cfg.terminal * sn.T @ self.P @ (Z[-1] - sn @ ub)
+        H[-1, -1] = 2 * cfg.slack_weight
+        g[-1] = cfg.slack_weight
+        H[: self.nu, : self.nu] += 1e-10 * np.eye(self.nu)
+        G = np.zeros((cfg.horizon + 1, self.nu + 1))
+        h_u = np.ones(cfg.horizon + 1)  # inactive rows: 0 ≤ 1
+        if active == "21e":
+            Vbar = np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:])
+            grad = 2 * Z[1:] @ self.P                # (Np, k)
+            rows = np.einsum("jk,jku->ju", grad, Sj)  # (Np, nu)
+            G[: cfg.horizon, : self.nu] = rows
+            G[: cfg.horizon, -1] = -1.0
+            h_u[: cfg.horizon] = self.clf.r_hat - Vbar + rows @ ub
+        elif active == "21f":
+            G[-1, : self.m] = beta0                  # u_0 is the first block's input
+            h_u[-1] = rhs_21f
+        return Z, H, g, G, h_u
+
+    # -- one sampling instant ---------------------------------------------------------------------------------
+    def step(self, x0: np.ndarray, z0: np.ndarray) -> ControlStep:
+        """Input for the sampled state: x0 (n,) is unused (the LMPC works on z0 = Ψ(x0) − Ψ(x_eq), (k,))."""
+        t0 = time.perf_counter()
+        cfg = self.cfg
+        z0 = np.ascontiguousarray(z0, dtype=float)
+        lyap = self.clf.lyap
+        V0 = float(lyap.value(z0))
+        region = region_of(V0, self.clf.r, self.clf.r_hat)
+        h0 = self.law(z0[None])[0]
+        _, beta0 = lyap.lie(z0[None])
+        beta0 = beta0[0]
+        rhs_21f = float(beta0 @ h0)
+        if region == "inner":
+            active = "21e" if cfg.use_21e else "none"
+        else:
+            active = "21f" if cfg.use_21f else "none"
+        if not np.all(np.isfinite(z0)):
+            return self._fallback(h0, "non-finite state z", region, active, t0, "not_run", 0, 0)
+        Ubar = self._blocks_from_steps(self._useq)
+        qp_iters = 0
+        res = None
+        it = 0
+        Z = None
+        for it in range(1, cfg.max_iter + 1):
+            Z, H, g, G, h_u = self._qp_data(z0, Ubar, active, rhs_21f, beta0)
+            res = self.qp.solve(H, g, G, h_u, self.x_l, self.x_u)
+            qp_iters += res.iterations
+            if not res.success:
+                return self._fallback(h0, res.message or res.status, region, active, t0, res.status, it, qp_iters)
+            Unew = np.clip(res.x[: self.nu].reshape(self.nb, self.m), self.u_min, self.u_max)
+            step = Unew - Ubar
+            if cfg.max_iter > 1:
+                Unew = self._line_search(z0, Ubar, step, active)
+            done = np.max(np.abs(Unew - Ubar)) <= cfg.tol
+            Ubar = np.ascontiguousarray(Unew)
+            if done:
+                break
+        u0 = Ubar[0].copy()
+        slack, binds = 0.0, False
+        Z = None
+        if active == "21e" or self.record_prediction:  # the exact prediction of the applied plan
+            Z = rollout(self.lam, self.B, self.b, self.model.dt, z0, Ubar, self.bos)
+        if active == "21e":
+            vmax = float(np.max(np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:])))
+            slack = max(0.0, vmax - self.clf.r_hat)
+            binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
+        elif active == "21f":
+            lhs = float(beta0 @ u0)
+            binds = abs(lhs - rhs_21f) <= 1e-6 * max(1.0, abs(rhs_21f))
+        # warm start: shift the per-step sequence by one step
+        useq = Ubar[self.bos]
+        self._useq = np.vstack([useq[1:], useq[-1:]])
+        return ControlStep(u=u0, status="solved", qp_status=res.status, iterations=it, qp_iterations=qp_iters,
+                           solve_time=time.perf_counter() - t0, region=region, active=active, binds=bool(binds),
+                           slack=slack, fallback=False, reason="", predicted=Z)
+
+    def _line_search(self, z0, Ubar, step, active):
+        def merit(U):
+            Z = rollout(self.lam, self.B, self.b, self.model.dt, z0, np.ascontiguousarray(U), self.bos)
+            s = 0.0
+            if active == "21e":
+                s = max(0.0, float(np.max(np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:]))) - self.clf.r_hat)
+            return self._exact_cost(Z, U, s)
+        base = merit(Ubar)
+        alpha = 1.0
+        for _ in range(8):
+            cand = np.clip(Ubar + alpha * step, self.u_min, self.u_max)
+            if merit(cand) <= base:
+                return cand
+            alpha *= 0.5
+        return np.clip(Ubar + alpha * step, self.u_min, self.u_max)
+
+    def _fallback(self, h0, why, region, active, t0, qp_status, it, qp_iters) -> ControlStep:
+        self.reset()
+        return ControlStep(u=np.clip(h0, self.u_min, self.u_max), status="fallback", qp_status=qp_status,
+                           iterations=it, qp_iterations=qp_iters, solve_time=time.perf_counter() - t0,
+                           region=region, active=active, binds=False, slack=0.0, fallback=True,
+                           reason=f"QP failed ({why}); applied h(z)")

@@ -1,0 +1,529 @@
+"""Reference ("oracle") controllers solved to convergence by CasADi + IPOPT, with the step interface of
+:class:`~kexp.control.lmpc.Lmpc` (``name``, ``reset()``, ``step(x0, z0) -> ControlStep``).
+
+* :class:`IpoptLmpc` solves the SAME problem as :class:`Lmpc` (paper eq. 21 on the bilinear Koopman model: same
+  cost incl. ``state_cost`` 'z'/'x' and ``terminal``, same move blocking, same slack penalty ρ(s + s²), the same
+  (21e)/(21f) switching by region, the same input bounds) as a multiple-shooting NLP, to check the PIQP SQP.
+* :class:`NmpcOracle` is a nonlinear MPC on the TRUE system (needs its drift symbolically, see
+  :func:`register_symbolic`), a yardstick for what any model-based controller could achieve.
+
+Discretisation of the bilinear model.  ``discretisation='exact'`` (default): for the held input u the model is
+linear, ż = A_u z + c_u, and one step is expm([[A_u, c_u], [0, 0]]Δ)·[z; 1], evaluated symbolically as its Taylor
+series applied to the vector [z; 1] (q substeps of Δ/q, p terms).  q and p are chosen from an upper bound θ of
+‖[[A_u, c_u], [0, 0]]Δ‖_∞ over the input box (θ/q ≤ 0.5 and (θ/q)^{p+1}/(p+1)!·e^{θ/q} ≤ 2⁻⁵⁶), so the truncation is
+below rounding — the same construction as kexp's numba kernel (``kernels.expm_small``, Taylor to 1e-16); CasADi's own
+``expm`` needs the SLICOT plugin, which the pip wheel lacks.  ``discretisation='rk4'`` uses classical RK4 with
+``substeps`` (default 8) per Δ.  Measured on the Van der Pol test model (Monomials(2, 3), k = 9, Δ = 0.01,
+|u| ≤ 5, 20 steps, 200 random z0 = Ψ(x0) − Ψ(0) with x0 ∈ [−1, 1]² and random inputs): max |z_casadi − z_kexp| =
+4.4e-16 for 'exact' (q = 1, p = 12) and 2.2e-15 for 'rk4' with 8 substeps (both at rounding level; RK4's own error
+is O((‖A‖Δ/8)⁴) per step, so it grows for fast models where 'exact' does not).
+
+IPOPT runs with ``print_level 0``, no banner, exact Hessian; the NLP is built once per controller and reused with new
+parameters / bounds each step, warm-started from the previous solution shifted by one step.  A solve that does not
+end in 'Solve_Succeeded' or 'Solved_To_Acceptable_Level' (or raises, or returns non-finite numbers) falls back to
+the explicit law h(z_0) and says why; :meth:`step` never raises on a solver failure.
+
+``ControlStep`` fields: ``qp_status`` is IPOPT's return status string, ``iterations`` IPOPT's iteration count, and
+``qp_iterations`` the same number (each IPOPT iteration is one factorisation of an interior-point KKT system, the
+unit PIQP's iteration count also measures).  ``solve_time`` is the wall time of the whole step.
+
+casadi is optional (``pip install casadi``, the extra ``kexp[oracle]``): it is imported only here, on first use.
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Callable
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import ConfigError
+from .blocking import block_of_step, block_sizes
+from .explicit import linearise
+from .kernels import rollout
+from .lmpc import ControlStep, LmpcConfig, region_of
+
+IPOPT_OK = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+DISCRETISATIONS = ("exact", "rk4")
+
+
+def _casadi():
+    try:
+        import casadi
+    except ImportError:  # pragma: no cover - depends on the environment
+        raise ConfigError("the IPOPT oracle controllers need casadi, which is not installed: pip install casadi "
+                          "(or the extra: pip install 'kexp[oracle]')") from None
+    return casadi
+
+
+def _bounds(u_min, u_max, m):
+    lo = np.broadcast_to(np.asarray(u_min, float), (m,)).copy()
+    hi = np.broadcast_to(np.asarray(u_max, float), (m,)).copy()
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
+        raise ConfigError(f"controller bounds: need finite u_min < u_max, got {u_min}, {u_max}")
+    return lo, hi
+
+
+def _ipopt_options(tol: float, max_iter: int, extra: dict | None) -> dict:
+    if not (tol > 0 and max_iter >= 1):
+        raise ConfigError(f"ipopt tol={tol}, max_iter={max_iter}: need tol > 0 and max_iter >= 1")
+    opts = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.tol": float(tol),
+            "ipopt.max_iter": int(max_iter), "error_on_fail": False}
+    opts.update(extra or {})
+    return opts
+
+
+def _solve(solver, args: dict):
+    """Run the nlpsol; returns (solution dict | None, status, iterations, why)."""
+    try:
+        sol = solver(**args)
+        stats = solver.stats()
+    except Exception as exc:  # noqa: BLE001 - a solver failure must never escape step()
+        return None, "exception", 0, f"IPOPT raised {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    status = str(stats.get("return_status", "unknown"))
+    iters = int(stats.get("iter_count", 0))
+    if status not in IPOPT_OK:
+        return None, status, iters, f"IPOPT: {status}"
+    x = np.asarray(sol["x"], float).reshape(-1)
+    if not np.all(np.isfinite(x)):
+        return None, status, iters, "IPOPT returned non-finite values"
+    return sol, status, iters, ""
+
+
+# ---- discretisations (symbolic) ----------------------------------------------------------------------------------
+def taylor_terms(theta: float) -> tuple[int, int]:
+    """(q substeps, p Taylor terms) with θ/q ≤ 0.5 and (θ/q)^{p+1}/(p+1)!·e^{θ/q} ≤ 2⁻⁵⁶."""
+    q = max(1, int(math.ceil(theta / 0.5)))
+    t = theta / q
+    p = 1
+    while p < 40 and t ** (p + 1) / math.factorial(p + 1) * math.exp(t) > 2.0 ** -56:
+        p += 1
+    return q, p
+
+
+def bilinear_step_exact(ca, lam, B, b, dt, z, u, q: int, p: int):
+    """Symbolic exact zero-order-hold step of ż = (Λ + Σu_iB_i)z + Σu_ib_i over dt: the Taylor series of
+    expm([[A_u, c_u], [0, 0]]h)·[z; 1] with q substeps h = dt/q and p terms (see the module docstring)."""
+    h = dt / q
+    A = ca.DM(lam * h)
+    for i in range(B.shape[0]):
+        A = A + u[i] * ca.DM(B[i] * h)
+    c = 0
+    for i in range(B.shape[0]):
+        c = c + u[i] * ca.DM(b[i] * h)
+    for _ in range(q):
+        t = ca.mtimes(A, z) + c          # first-order term; the augmented '1' only enters here
+        acc = z + t
+        for j in range(2, p + 1):
+            t = ca.mtimes(A, t) / j
+            acc = acc + t
+        z = acc
+    return z
+
+
+def rk4_step(f, x, u, dt, substeps: int):
+    """Classical RK4 with ``substeps`` for ẋ = f(x, u), u held over dt."""
+    h = dt / substeps
+    for _ in range(substeps):
+        k1 = f(x, u)
+        k2 = f(x + 0.5 * h * k1, u)
+        k3 = f(x + 0.5 * h * k2, u)
+        k4 = f(x + h * k3, u)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
+def bilinear_step_function(model, u_min, u_max, discretisation: str = "exact", substeps: int | None = None):
+    """casadi Function (z, u) -> z⁺, one sample-and-hold step of the bilinear model."""
+    ca = _casadi()
+    if discretisation not in DISCRETISATIONS:
+        raise ConfigError(f"oracle discretisation={discretisation!r}; valid: {DISCRETISATIONS}")
+    k, m = model.k, model.m
+    z = ca.SX.sym("z", k)
+    u = ca.SX.sym("u", m)
+    lam, B, b, dt = np.asarray(model.Lambda), np.asarray(model.B), np.asarray(model.b), float(model.dt)
+    if discretisation == "exact":
+        lo, hi = _bounds(u_min, u_max, m)
+        umax = np.maximum(np.abs(lo), np.abs(hi))
+        rows = np.abs(lam).sum(axis=1) + sum(umax[i] * (np.abs(B[i]).sum(axis=1) + np.abs(b[i])) for i in range(m))
+        q, p = taylor_terms(float(rows.max()) * dt)
+        if substeps is not None:
+            q = max(q, int(substeps))
+        zn = bilinear_step_exact(ca, lam, B, b, dt, z, u, q, p)
+    else:
+        sub = 8 if substeps is None else int(substeps)
+        if sub < 1:
+            raise ConfigError(f"oracle substeps={substeps}: use an int >= 1")
+        Bs = [ca.DM(B[i]) for i in range(m)]
+        bs = [ca.DM(b[i]) for i in range(m)]
+        lamd = ca.DM(lam)
+
+        def f(zz, uu):
+            out = ca.mtimes(lamd, zz)
+            for i in range(m):
+                out = out + uu[i] * (ca.mtimes(Bs[i], zz) + bs[i])
+            return out
+        zn = rk4_step(f, z, u, dt, sub)
+    return ca.Function("bilinear_step", [z, u], [zn])
+
+
+# ---- the shared exact objective of eq. 21 ------------------------------------------------------------------------
+def lmpc_objective(model, clf, config: LmpcConfig, z0, U, active: str) -> float:
+    """The LMPC objective of the block inputs U (nb, m) from z0, on kexp's exact rollout: the formula of
+    ``Lmpc._exact_cost`` with the smallest feasible slack s = max(0, max_j V(z_j) − r̂) when (21e) is active
+    (else s = 0).  Shared by both solvers so their optima can be compared on equal terms."""
+    sizes = block_sizes(config.horizon, config.free_moves, config.blocks)
+    bos = block_of_step(sizes)
+    U = np.ascontiguousarray(np.asarray(U, float).reshape(len(sizes), model.m))
+    Z = rollout(np.ascontiguousarray(model.Lambda), np.ascontiguousarray(model.B), np.ascontiguousarray(model.b),
+                model.dt, np.ascontiguousarray(z0, dtype=float), U, bos)
+    s = 0.0
+    if active == "21e":
+        s = max(0.0, float(np.max(np.einsum("jk,kl,jl->j", Z[1:], clf.P, Z[1:]))) - clf.r_hat)
+    zz = Z[1:] if config.state_cost == "z" else Z[1:] @ np.asarray(model.C).T
+    r_diag = np.repeat(sizes.astype(float), model.m) * config.r
+    cost = model.dt * config.w * float(np.sum(zz * zz)) + model.dt * float(np.sum(r_diag * U.reshape(-1) ** 2))
+    cost += config.terminal * float(Z[-1] @ clf.P @ Z[-1])
+    return cost + config.slack_weight * (s + s * s)
+
+
+# ---- IPOPT on the LMPC problem -----------------------------------------------------------------------------------
+class IpoptLmpc:
+    """Eq. 21 on the bilinear model, exactly as :class:`Lmpc` poses it, solved to convergence by IPOPT.
+
+    NLP variables w = [vec(U) (nb·m, block then input), s, z_1..z_Np (Np·k)] (multiple shooting; same optimum as
+    the single-shooting QP of Lmpc), parameters p = [z_0, L_BV(z_0)].  Region switching is done by the constraint
+    bounds: rows V(z_j) − s ≤ r̂ (21e) and L_BV(z_0)·u_0 ≤ L_BV(z_0)·h(z_0) (21f) get an infinite upper bound when
+    inactive.  After each solve ``last_plan`` (nb, m), ``last_slack`` and ``last_objective`` (IPOPT's objective on its
+    own discretisation) describe the solution.
+    """
+
+    name = "ipopt_lmpc"
+
+    def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, discretisation: str = "exact",
+                 substeps: int | None = None, ipopt_tol: float = 1e-10, ipopt_max_iter: int = 1000,
+                 ipopt_options: dict | None = None, record_prediction: bool = False):
+        ca = _casadi()
+        self.model, self.clf, self.law, self.cfg = model, clf, law, config
+        self.record_prediction = record_prediction
+        self.m, self.k = model.m, model.k
+        self.u_min, self.u_max = _bounds(u_min, u_max, self.m)
+        self.sizes = block_sizes(config.horizon, config.free_moves, config.blocks)
+        self.bos = block_of_step(self.sizes)
+        self.nb = len(self.sizes)
+        self.nu = self.nb * self.m
+        N, k, m = config.horizon, self.k, self.m
+        self.lam = np.ascontiguousarray(model.Lambda)
+        self.B = np.ascontiguousarray(model.B)
+        self.b = np.ascontiguousarray(model.b)
+        self.P = np.asarray(clf.P, float)
+        self.step_fn = bilinear_step_function(model, self.u_min, self.u_max, discretisation, substeps)
+
+        w = ca.SX.sym("w", self.nu + 1 + N * k)
+        par = ca.SX.sym("p", k + m)
+        z0, beta0 = par[:k], par[k:]
+        U = [w[i * m:(i + 1) * m] for i in range(self.nb)]
+        s = w[self.nu]
+        Z = [w[self.nu + 1 + j * k: self.nu + 1 + (j + 1) * k] for j in range(N)]
+        P = ca.DM(self.P)
+        C = ca.DM(np.asarray(model.C)) if config.state_cost == "x" else None
+        dyn, vrows = [], []
+        cost = 0
+        prev = z0
+        for j in range(N):
+            dyn.append(self.step_fn(prev, U[self.bos[j]]) - Z[j])
+            out = Z[j] if C is None else ca.mtimes(C, Z[j])
+            cost = cost + model.dt * config.w * ca.sumsqr(out)
+            vrows.append(ca.dot(Z[j], ca.mtimes(P, Z[j])) - s)
+            prev = Z[j]
+        for i in range(self.nb):
+            cost = cost + model.dt * config.r * float(self.sizes[i]) * ca.sumsqr(U[i])
+        if config.terminal > 0:
+            cost = cost + config.terminal * ca.dot(Z[-1], ca.mtimes(P, Z[-1]))
+        cost = cost + config.slack_weight * (s + s * s)
+        g = ca.vertcat(*dyn, *vrows, ca.dot(beta0, U[0]))
+        self._solver = ca.nlpsol("ipopt_lmpc", "ipopt", {"x": w, "p": par, "f": cost, "g": g},
+                                 _ipopt_options(ipopt_tol, ipopt_max_iter, ipopt_options))
+        self._lbx = np.concatenate([np.tile(self.u_min, self.nb), [0.0], np.full(N * k, -np.inf)])
+        self._ubx = np.concatenate([np.tile(self.u_max, self.nb), [np.inf], np.full(N * k, np.inf)])
+        self._lbg = np.concatenate([np.zeros(N * k), np.full(N + 1, -np.inf)])
+        self.reset()
+
+    def reset(self) -> None:
+        self._useq = np.zeros((self.cfg.horizon, self.m))   # per-step input guess
+        self.last_plan = None
+        self.last_slack = float("nan")
+        self.last_objective = float("nan")
+
+    def _blocks_from_steps(self, useq):
+        starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]])
+        return np.ascontiguousarray(useq[starts])
+
+    def _rollout(self, z0, U):
+        return rollout(self.lam, self.B, self.b, self.model.dt, np.ascontiguousarray(z0), np.ascontiguousarray(U),
+                       self.bos)
+
+    def step(self, x0: np.ndarray, z0: np.ndarray) -> ControlStep:
+        """Input for the sampled state (x0 unused; the problem is posed on z0 = Ψ(x0) − Ψ(x_eq))."""
+        t0 = time.perf_counter()
+        cfg, N, k = self.cfg, self.cfg.horizon, self.k
+        z0 = np.ascontiguousarray(z0, dtype=float)
+        lyap = self.clf.lyap
+        V0 = float(lyap.value(z0))
+        region = region_of(V0, self.clf.r, self.clf.r_hat)
+        h0 = self.law(z0[None])[0]
+        _, beta0 = lyap.lie(z0[None])
+        beta0 = beta0[0]
+        rhs_21f = float(beta0 @ h0)
+        if region == "inner":
+            active = "21e" if cfg.use_21e else "none"
+        else:
+            active = "21f" if cfg.use_21f else "none"
+        if not np.all(np.isfinite(z0)):
+            return self._fallback(h0, "non-finite state z", region, active, t0, "not_run", 0)
+        Ubar = self._blocks_from_steps(self._useq)
+        Zbar = self._rollout(z0, Ubar)
+        w0 = np.concatenate([Ubar.reshape(-1), [0.0], Zbar[1:].reshape(-1)])
+        ubg = np.concatenate([np.zeros(N * k), np.full(N, self.clf.r_hat if active == "21e" else np.inf),
+                              [rhs_21f if active == "21f" else np.inf]])
+        sol, status, iters, why = _solve(self._solver, dict(x0=w0, p=np.concatenate([z0, beta0]), lbx=self._lbx,
+                                                            ubx=self._ubx, lbg=self._lbg, ubg=ubg))
+        if sol is None:
+            return self._fallback(h0, why, region, active, t0, status, iters)
+        wopt = np.asarray(sol["x"], float).reshape(-1)
+        U = np.clip(wopt[: self.nu].reshape(self.nb, self.m), self.u_min, self.u_max)
+        self.last_plan = U.copy()
+        self.last_slack = float(wopt[self.nu])
+        self.last_objective = float(sol["f"])
+        u0 = U[0].copy()
+        slack, binds, Z = 0.0, False, None
+        if active == "21e" or self.record_prediction:   # the exact (kexp) prediction of the applied plan
+            Z = self._rollout(z0, U)
+        if active == "21e":
+            vmax = float(np.max(np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:])))
+            slack = max(0.0, vmax - self.clf.r_hat)
+            binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
+        elif active == "21f":
+            binds = abs(float(beta0 @ u0) - rhs_21f) <= 1e-6 * max(1.0, abs(rhs_21f))
+        useq = U[self.bos]
+        self._useq = np.vstack([useq[1:], useq[-1:]])
+        return ControlStep(u=u0, status="solved", qp_status=status, iterations=iters, qp_iterations=iters,
+                           solve_time=time.perf_counter() - t0, region=region, active=active, binds=bool(binds),
+                           slack=slack, fallback=False, reason="", predicted=Z)
+
+    def _fallback(self, h0, why, region, active, t0, status, iters) -> ControlStep:
+        self.reset()
+        return ControlStep(u=np.clip(h0, self.u_min, self.u_max), status="fallback", qp_status=status,
+                           iterations=iters, qp_iterations=iters, solve_time=time.perf_counter() - t0,
+                           region=region, active=active, binds=False, slack=0.0, fallback=True,
+                           reason=f"IPOPT failed ({why}); applied h(z)")
+
+
+# ---- symbolic true dynamics --------------------------------------------------------------------------------------
+_SYMBOLIC: dict[type, Callable] = {}
+
+
+def register_symbolic(cls: type, fn: Callable) -> None:
+    """Register the symbolic dynamics of a system class: ``fn(system, x) -> (F, G)`` with x a casadi SX column
+    (n×1), F (n×1) and G (n×m) casadi expressions (or numbers/arrays).  Matching is by exact class (a subclass
+    that changes the dynamics needs its own entry)."""
+    if not isinstance(cls, type) or not callable(fn):
+        raise ConfigError(f"register_symbolic: need a class and a callable, got {cls!r}, {fn!r}")
+    _SYMBOLIC[cls] = fn
+
+
+def _register_builtin() -> None:
+    from ..systems.library import Duffing, Linear, Pendulum, SlowManifold, VanDerPol
+
+    def vdp(s, x):
+        ca = _casadi()
+        return ca.vertcat(x[1], s.mu * (1 - x[0] ** 2) * x[1] - x[0]), np.array([[0.0], [1.0]])
+
+    def pendulum(s, x):
+        ca = _casadi()
+        return ca.vertcat(x[1], s.c * x[1] - ca.sin(x[0])), np.array([[0.0], [1.0]])
+
+    def duffing(s, x):
+        ca = _casadi()
+        return (ca.vertcat(x[1], -s.delta * x[1] + s.alpha * x[0] - s.beta * x[0] ** 3), np.array([[0.0], [1.0]]))
+
+    def linear(s, x):
+        ca = _casadi()
+        return ca.mtimes(ca.DM(np.asarray(s.A, float)), x), np.asarray(s.B, float)
+
+    def slow(s, x):
+        ca = _casadi()
+        G = np.array([[0.0], [1.0]]) if s.inputs == "x2" else np.eye(2)
+        return ca.vertcat(s.mu * x[0], s.lam * (x[1] - x[0] ** 2)), G
+
+    for cls, fn in ((VanDerPol, vdp), (Pendulum, pendulum), (Duffing, duffing), (Linear, linear),
+                    (SlowManifold, slow)):
+        register_symbolic(cls, fn)
+
+
+_register_builtin()
+
+
+def symbolic_dynamics(system, *, check: bool = True):
+    """casadi Function (x, u) -> ẋ = F(x) + G(x)u of ``system`` from the registry; with ``check`` it is compared
+    with ``system.drift``/``input_matrix`` at a few states around the equilibrium."""
+    ca = _casadi()
+    fn = _SYMBOLIC.get(type(system))
+    if fn is None:
+        raise ConfigError(f"nmpc oracle: no symbolic model for system {type(system).__name__}; register one with "
+                          f"register_symbolic({type(system).__name__}, fn) where fn(system, x) -> (F, G)")
+    n, m = system.n, system.m
+    x = ca.SX.sym("x", n)
+    u = ca.SX.sym("u", m)
+    F, G = fn(system, x)
+    F, G = ca.SX(F), ca.SX(G)
+    if F.shape != (n, 1) or G.shape != (n, m):
+        raise ConfigError(f"nmpc oracle: symbolic model of {type(system).__name__} gives F {F.shape}, G {G.shape}; "
+                          f"need ({n}, 1) and ({n}, {m})")
+    f = ca.Function("true_rhs", [x, u], [F + ca.mtimes(G, u)])
+    if check:
+        probe = np.asarray(system.equilibrium, float) + np.random.default_rng(0).uniform(-1, 1, (4, n))
+        up = np.random.default_rng(1).uniform(-1, 1, (4, m))
+        want = system.rhs(probe, up)
+        got = np.array([np.asarray(f(xp, uu), float).reshape(-1) for xp, uu in zip(probe, up)])
+        if not np.allclose(got, want, rtol=1e-9, atol=1e-9):
+            raise ConfigError(f"nmpc oracle: the symbolic model of {type(system).__name__} disagrees with its drift/"
+                              f"input_matrix (max error {np.max(np.abs(got - want)):.3g}); fix the registered fn")
+    return f
+
+
+# ---- NMPC on the true system -------------------------------------------------------------------------------------
+class NmpcOracle:
+    """Nonlinear MPC on the TRUE system, solved by IPOPT (multiple shooting, sample-and-hold RK4 with
+    ``substeps`` on F(x) + G(x)u):
+
+        min  Δ Σ_{j=1..N} q‖x_j − x_eq‖² + Δ Σ_{j=0..N−1} r‖u_j‖² + (x_N − x_eq)ᵀ X (x_N − x_eq),   u_min ≤ u ≤ u_max,
+
+    X = 0 (``terminal=None``), the continuous Riccati solution of the true linearisation at x_eq with Q = qI,
+    R = rI (``terminal='lqr'``, the LQR cost-to-go), or a given (n, n) matrix.  From ``config`` (an LmpcConfig or
+    anything with ``free_moves``/``blocks``) only the move blocking is used; the horizon is ``horizon_steps``.
+    z0 is unused; ``region`` is 'n/a' unless a ``clf`` is given (then it is computed from z0, with no constraint).
+    On an IPOPT failure the step falls back to ``law(z0)`` if a law is given, else to the saturated LQR feedback.
+    """
+
+    name = "nmpc_oracle"
+
+    def __init__(self, system, config=None, u_min=-5.0, u_max=5.0, horizon_steps: int = 20, dt: float = 0.01,
+                 q: float = 1.0, r: float = 1.0, terminal="lqr", *, substeps: int = 4, clf=None, law=None,
+                 ipopt_tol: float = 1e-8, ipopt_max_iter: int = 500, ipopt_options: dict | None = None,
+                 record_prediction: bool = False):
+        ca = _casadi()
+        if not (isinstance(horizon_steps, (int, np.integer)) and horizon_steps >= 1):
+            raise ConfigError(f"nmpc horizon_steps={horizon_steps}: use an int >= 1")
+        if not (dt > 0 and q > 0 and r > 0 and substeps >= 1):
+            raise ConfigError(f"nmpc dt={dt}, q={q}, r={r}, substeps={substeps}: need all > 0 (substeps an int >= 1)")
+        self.system, self.cfg, self.clf, self.law = system, config, clf, law
+        self.record_prediction = record_prediction
+        self.n, self.m = system.n, system.m
+        self.N, self.dt = int(horizon_steps), float(dt)
+        self.u_min, self.u_max = _bounds(u_min, u_max, self.m)
+        self.x_eq = np.asarray(system.equilibrium, float)
+        free = getattr(config, "free_moves", None) if config is not None else None
+        blocks = getattr(config, "blocks", None) if config is not None else None
+        self.sizes = block_sizes(self.N, free, blocks)
+        self.bos = block_of_step(self.sizes)
+        self.nb = len(self.sizes)
+        self.nu = self.nb * self.m
+        A, Bl = linearise(system)
+        Xric = sla.solve_continuous_are(A, Bl, q * np.eye(self.n), r * np.eye(self.m))
+        self.K = np.linalg.solve(r * np.eye(self.m), Bl.T @ Xric)   # fallback LQR gain
+        if terminal is None or (isinstance(terminal, str) and terminal == "none"):
+            Xt = np.zeros((self.n, self.n))
+        elif isinstance(terminal, str):
+            if terminal != "lqr":
+                raise ConfigError(f"nmpc terminal={terminal!r}; valid: 'lqr', 'none'/None or an (n, n) matrix")
+            Xt = Xric
+        else:
+            Xt = np.asarray(terminal, float)
+            if Xt.shape != (self.n, self.n) or not np.all(np.isfinite(Xt)):
+                raise ConfigError(f"nmpc terminal matrix has shape {Xt.shape}; need a finite ({self.n}, {self.n})")
+        self.terminal_matrix = Xt
+        f = symbolic_dynamics(system)
+        xs = ca.SX.sym("x", self.n)
+        us = ca.SX.sym("u", self.m)
+        self.step_fn = ca.Function("true_step", [xs, us], [rk4_step(f, xs, us, self.dt, int(substeps))])
+
+        n, m, N = self.n, self.m, self.N
+        w = ca.SX.sym("w", self.nu + N * n)
+        x0 = ca.SX.sym("x0", n)
+        U = [w[i * m:(i + 1) * m] for i in range(self.nb)]
+        X = [w[self.nu + j * n: self.nu + (j + 1) * n] for j in range(N)]
+        xe = ca.DM(self.x_eq)
+        cost, dyn, prev = 0, [], x0
+        for j in range(N):
+            dyn.append(self.step_fn(prev, U[self.bos[j]]) - X[j])
+            cost = cost + self.dt * q * ca.sumsqr(X[j] - xe)
+            prev = X[j]
+        for i in range(self.nb):
+            cost = cost + self.dt * r * float(self.sizes[i]) * ca.sumsqr(U[i])
+        if np.any(Xt != 0):
+            cost = cost + ca.dot(X[-1] - xe, ca.mtimes(ca.DM(Xt), X[-1] - xe))
+        self._solver = ca.nlpsol("nmpc_oracle", "ipopt", {"x": w, "p": x0, "f": cost, "g": ca.vertcat(*dyn)},
+                                 _ipopt_options(ipopt_tol, ipopt_max_iter, ipopt_options))
+        self._lbx = np.concatenate([np.tile(self.u_min, self.nb), np.full(N * n, -np.inf)])
+        self._ubx = np.concatenate([np.tile(self.u_max, self.nb), np.full(N * n, np.inf)])
+        self._g0 = np.zeros(N * n)
+        self.reset()
+
+    def reset(self) -> None:
+        self._useq = np.zeros((self.N, self.m))
+        self.last_plan = None
+        self.last_objective = float("nan")
+
+    def simulate(self, x0, U) -> np.ndarray:
+        """The oracle's own prediction (N+1, n) for block inputs U (nb, m)."""
+        X = np.empty((self.N + 1, self.n))
+        X[0] = x0
+        for j in range(self.N):
+            X[j + 1] = np.asarray(self.step_fn(X[j], U[self.bos[j]]), float).reshape(-1)
+        return X
+
+    def step(self, x0: np.ndarray, z0: np.ndarray | None = None) -> ControlStep:
+        t0 = time.perf_counter()
+        x0 = np.asarray(x0, float)
+        region = "n/a"
+        has_z = z0 is not None and np.size(z0) > 0
+        if self.clf is not None and has_z:
+            region = region_of(float(self.clf.lyap.value(np.asarray(z0, float))), self.clf.r, self.clf.r_hat)
+        if not np.all(np.isfinite(x0)):
+            return self._fallback(x0, z0, "non-finite state x", region, t0, "not_run", 0)
+        starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]])
+        Ubar = self._useq[starts]
+        Xbar = self.simulate(x0, Ubar)
+        if not np.all(np.isfinite(Xbar)):
+            Xbar = np.tile(x0, (self.N + 1, 1))
+        w0 = np.concatenate([Ubar.reshape(-1), Xbar[1:].reshape(-1)])
+        sol, status, iters, why = _solve(self._solver, dict(x0=w0, p=x0, lbx=self._lbx, ubx=self._ubx,
+                                                            lbg=self._g0, ubg=self._g0))
+        if sol is None:
+            return self._fallback(x0, z0, why, region, t0, status, iters)
+        wopt = np.asarray(sol["x"], float).reshape(-1)
+        U = np.clip(wopt[: self.nu].reshape(self.nb, self.m), self.u_min, self.u_max)
+        self.last_plan = U.copy()
+        self.last_objective = float(sol["f"])
+        useq = U[self.bos]
+        self._useq = np.vstack([useq[1:], useq[-1:]])
+        pred = None
+        if self.record_prediction:   # note: x (N+1, n) here, not z
+            pred = np.vstack([x0, wopt[self.nu:].reshape(self.N, self.n)])
+        return ControlStep(u=U[0].copy(), status="solved", qp_status=status, iterations=iters, qp_iterations=iters,
+                           solve_time=time.perf_counter() - t0, region=region, active="none", binds=False,
+                           slack=0.0, fallback=False, reason="", predicted=pred)
+
+    def _fallback(self, x0, z0, why, region, t0, status, iters) -> ControlStep:
+        self.reset()
+        if self.law is not None and z0 is not None and np.size(z0) > 0 and np.all(np.isfinite(z0)):
+            u, what = np.asarray(self.law(np.asarray(z0, float)[None])[0], float), "h(z)"
+        else:
+            e = np.where(np.isfinite(x0), x0 - self.x_eq, 0.0)
+            u, what = -self.K @ e, "the LQR feedback"
+        return ControlStep(u=np.clip(u, self.u_min, self.u_max), status="fallback", qp_status=status,
+                           iterations=iters, qp_iterations=iters, solve_time=time.perf_counter() - t0,
+                           region=region, active="none", binds=False, slack=0.0, fallback=True,
+                           reason=f"IPOPT failed ({why}); applied {what}")

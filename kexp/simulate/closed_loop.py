@@ -1,0 +1,167 @@
+"""Closed loop in sample-and-hold on the TRUE nonlinear system.
+
+At t_k the controller sees x(t_k) (and z = Ψ(x(t_k)) − Ψ(x_eq) if a model is given), returns u_k, and the true
+system is integrated accurately (adaptive DOP853) over [t_k, t_k + Δ) with u_k held.  Arrays: t (T+1,),
+x (T+1, n), u (T, m), z (T+1, k).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
+from ..errors import ConfigError
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    T: float = 10.0
+    dt: float = 0.01
+    tol: float = 1e-2            # success: ‖x(T) − x_eq‖ < tol
+    r: float = 1.0               # input weight in the reported cost J = ∫ ‖x − x_eq‖² + uᵀRu dt
+    diverge_bound: float = 1e6
+    integrator: IntegratorOptions = field(default_factory=lambda: IntegratorOptions(batch=1))
+
+    def __post_init__(self):
+        if not (self.dt > 0 and self.T >= self.dt):
+            raise ConfigError(f"sim: need 0 < dt <= T, got dt={self.dt}, T={self.T}")
+        if not self.tol > 0:
+            raise ConfigError(f"sim.tol={self.tol}: use a number > 0")
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.T / self.dt))
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One control step Δ (all fields logged)."""
+
+    k: int
+    t: float
+    x: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+    V: float
+    Vdot: float              # model V̇ at z with the applied u
+    region: str
+    active: str
+    binds: bool
+    slack: float
+    status: str
+    qp_status: str
+    iterations: int
+    qp_iterations: int
+    solve_time: float
+    fallback: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class RunMetrics:
+    success: bool
+    final_error: float
+    cost: float
+    settling_time: float     # first t after which ‖x − x_eq‖ stays < tol (inf if never)
+    max_abs_u: float
+    time_outside_omega_r: float
+    fallbacks: int
+    solve_time_median: float
+    solve_time_p95: float
+    solve_time_p99: float
+    solve_time_max: float
+
+    def to_dict(self) -> dict:
+        from dataclasses import asdict
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    status: str              # 'completed' or 'diverged'
+    message: str
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    records: tuple
+    metrics: RunMetrics
+    open_loop: np.ndarray | None = None
+
+
+def run_cost(t, x, u, x_eq, r) -> float:
+    """J = ∫ ‖x − x_eq‖² + r‖u‖² dt: trapezoid on the samples for x, exact for the held u."""
+    e = np.sum((x - x_eq) ** 2, axis=1)
+    dt = np.diff(t)
+    return float(np.sum(dt * 0.5 * (e[:-1] + e[1:])) + r * np.sum(dt * np.sum(u ** 2, axis=1)))
+
+
+def _metrics(t, x, u, records, x_eq, cfg: SimConfig) -> RunMetrics:
+    err = np.linalg.norm(x - x_eq, axis=1)
+    above = np.flatnonzero(err >= cfg.tol)
+    settle = 0.0 if above.size == 0 else (float(t[above[-1] + 1]) if above[-1] + 1 < len(t) else float("inf"))
+    times = np.array([r.solve_time for r in records]) if records else np.zeros(1)
+    return RunMetrics(
+        success=bool(len(t) == cfg.n_steps + 1 and err[-1] < cfg.tol), final_error=float(err[-1]),
+        cost=run_cost(t, x, u, x_eq, cfg.r), settling_time=settle,
+        max_abs_u=float(np.max(np.abs(u))) if u.size else 0.0,
+        time_outside_omega_r=float(cfg.dt * sum(r.region == "outside" for r in records)),
+        fallbacks=int(sum(r.fallback for r in records)),
+        solve_time_median=float(np.median(times)), solve_time_p95=float(np.percentile(times, 95)),
+        solve_time_p99=float(np.percentile(times, 99)), solve_time_max=float(np.max(times)))
+
+
+def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, model=None, lyap=None,
+                open_loop: bool = False, progress=None) -> RunResult:
+    """Simulate ``controller`` on ``system`` from ``x0`` (n,).  ``model`` lifts x to z for controllers that need
+    it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the records.  ``progress`` is called
+    with the step index (for progress bars)."""
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
+        raise ConfigError(f"initial condition {x0.tolist()}: need {system.n} finite numbers")
+    if model is not None and abs(model.dt - config.dt) > 1e-12:
+        raise ConfigError(f"sim.dt={config.dt} differs from the model's Δ={model.dt}; use the same sampling time")
+    x_eq = np.asarray(system.equilibrium, float)
+    n_steps = config.n_steps
+    t = np.arange(n_steps + 1) * config.dt
+    xs = np.empty((n_steps + 1, system.n))
+    us = np.empty((n_steps, system.m))
+    xs[0] = x0
+    records = []
+    status, message = "completed", ""
+    controller.reset()
+    last = n_steps
+    for k in range(n_steps):
+        z = model.lift(xs[k]) if model is not None else np.zeros(0)
+        step = controller.step(xs[k], z)
+        u = np.asarray(step.u, float)
+        if not np.all(np.isfinite(u)):
+            u = np.zeros(system.m)
+        us[k] = u
+        V = float(lyap.value(z)) if lyap is not None else float("nan")
+        Vdot = float(lyap.vdot(z, u)) if lyap is not None else float("nan")
+        records.append(StepRecord(k=k, t=float(t[k]), x=xs[k].copy(), z=z, u=u.copy(), V=V, Vdot=Vdot,
+                                  region=step.region, active=step.active, binds=step.binds, slack=step.slack,
+                                  status=step.status, qp_status=step.qp_status, iterations=step.iterations,
+                                  qp_iterations=step.qp_iterations, solve_time=step.solve_time,
+                                  fallback=step.fallback, reason=step.reason))
+        try:
+            nxt = integrate(system, xs[k][None], t[k:k + 2], u[None, None], config.integrator)[0, 1]
+        except IntegrationFailure as exc:
+            status, message, last = "diverged", f"integration failed at t={t[k]:.3f}: {exc}", k
+            break
+        if not np.all(np.isfinite(nxt)) or np.linalg.norm(nxt - x_eq) > config.diverge_bound:
+            status, message, last = "diverged", f"state left ‖x‖ ≤ {config.diverge_bound:g} at t={t[k + 1]:.3f}", k
+            break
+        xs[k + 1] = nxt
+        if progress is not None:
+            progress(k)
+    t, xs, us = t[:last + 1], xs[:last + 1], us[:last]
+    ol = None
+    if open_loop:
+        try:
+            ol = integrate(system, x0[None], np.arange(n_steps + 1) * config.dt, None, IntegratorOptions())[0]
+        except IntegrationFailure:
+            ol = None
+    return RunResult(status=status, message=message, t=t, x=xs, u=us, records=tuple(records),
+                     metrics=_metrics(t, xs, us, records, x_eq, config), open_loop=ol)

@@ -1,0 +1,104 @@
+import numpy as np
+import pytest
+
+from kexp.clf import ClfConfig, QuadraticLyapunov, clf_from_P, synthesize_clf
+from kexp.control import make_law
+from kexp.data import Circle, DataConfig, collect
+from kexp.dictionary import Monomials
+from kexp.errors import ConfigError
+from kexp.identify import identify
+from kexp.systems import VanDerPol
+
+from toy import toy_model
+
+
+@pytest.fixture(scope="module")
+def vdp():
+    s = VanDerPol()
+    model = identify(s, collect(s, Circle(100, 2.5), DataConfig(T=10.0)), Monomials(2, 5))
+    return model, synthesize_clf(model, ClfConfig())
+
+
+def test_sdp_solution_satisfies_eq40(vdp):
+    model, clf = vdp
+    eig = np.linalg.eigvalsh(clf.P)
+    assert eig[0] >= 0.01 - 1e-6 and eig[-1] <= 1.0 + 1e-6
+    lmax = np.linalg.eigvalsh(clf.P @ model.Lambda + model.Lambda.T @ clf.P)[-1]
+    assert clf.sigma >= lmax - 1e-5 and abs(clf.sigma - max(lmax, 0.0)) < 1e-4 * max(1.0, abs(lmax))
+    assert clf.status == "optimal"
+
+
+def test_sdp_is_homogeneous_in_the_bounds(vdp):
+    """Pitfall 6: scaling (c_L, c_U) by 10 scales the optimal P by 10 — the bounds act as a gain."""
+    model, clf = vdp
+    clf10 = synthesize_clf(model, ClfConfig(c_lower=0.1, c_upper=10.0))
+    assert np.max(np.abs(clf10.P - 10 * clf.P)) < 1e-4 * np.max(np.abs(clf10.P))
+
+
+def test_vanderpol_certificate_report(vdp):
+    """Measured: Proposition 1 fails globally (pitfall 7), yet Sontag decreases V at every grid point of [-1,1]²."""
+    _, clf = vdp
+    c = clf.certificate
+    assert not c.global_holds and c.global_margin > 0.1
+    assert c.holds_on_samples and c.frac_decrease == 1.0
+    assert c.decay_worst < 0 and c.r > c.r_hat > 0
+    assert "FAILS" in c.verdict
+
+
+def test_certificate_flags_a_model_violating_proposition_1():
+    # z = (1, 0): L_ΛV = 2 > 0 but B moves only z2, so L_BV = 0 there: no input can decrease V
+    bad = toy_model(np.diag([1.0, -1.0]), np.diag([0.0, 1.0]))
+    cb = clf_from_P(bad, np.eye(2), ClfConfig(grid=21), u_min=-5, u_max=5)
+    assert not cb.certificate.global_holds and cb.certificate.global_margin > 0
+    assert not cb.certificate.holds_on_samples and cb.certificate.frac_decrease < 1
+    assert "NOT a certified CLF" in cb.certificate.verdict
+    good = toy_model(np.diag([1.0, -1.0]), np.eye(2))   # L_BV = 2V > 0 for z ≠ 0
+    cg = clf_from_P(good, np.eye(2), ClfConfig(grid=21), u_min=-50, u_max=50)
+    assert cg.certificate.global_holds and cg.certificate.global_margin < 0
+    assert cg.certificate.holds_on_samples
+
+
+def test_sontag_decreases_v_where_the_certificate_holds():
+    rng = np.random.default_rng(0)
+    for m in (1, 2):
+        Lam = np.array([[0.5, 1.0, 0.0], [-1.0, 0.5, 0.0], [0.0, 0.0, -0.2]])
+        B = np.stack([np.eye(3) * (i + 1) + 0.1 * rng.normal(size=(3, 3)) for i in range(m)])
+        model = toy_model(Lam, B)
+        lyap = QuadraticLyapunov.from_model(model, np.diag([1.0, 2.0, 0.5]))
+        h = make_law("sontag", lyap, -1e6, 1e6)
+        z = rng.normal(size=(2000, 3))
+        vdot = lyap.vdot(z, h(z))
+        assert np.all(vdot < 0)
+        # Sontag's formula gives V̇ = −√(a² + ‖β‖⁴) exactly when unsaturated
+        a, beta = lyap.lie(z)
+        assert np.allclose(vdot, -np.sqrt(a ** 2 + np.sum(beta ** 2, 1) ** 2), rtol=1e-9)
+
+
+@pytest.mark.parametrize("law", ["sontag", "lie_gain"])
+def test_laws_are_finite_and_within_bounds(vdp, law):
+    model, clf = vdp
+    h = make_law(law, clf.lyap, -5.0, 3.0)
+    rng = np.random.default_rng(1)
+    z = np.concatenate([rng.normal(size=(500, model.k)) * 10.0 ** rng.uniform(-12, 6, (500, 1)),
+                        np.zeros((1, model.k)), np.full((1, model.k), np.nan), np.full((1, model.k), 1e200)])
+    with np.errstate(all="ignore"):
+        u = h(z)
+    assert u.shape == (503, 1) and np.all(np.isfinite(u)) and np.all((u >= -5.0) & (u <= 3.0))
+    assert u[500, 0] == 0.0  # h(0) = 0
+
+
+def test_lie_gain_is_minus_k_lbv(vdp):
+    model, clf = vdp
+    h = make_law("lie_gain", clf.lyap, -100, 100, k=0.5)
+    z = model.lift(np.random.default_rng(2).uniform(-0.2, 0.2, (50, 2)))
+    _, beta = clf.lyap.lie(z)
+    assert np.allclose(h(z), np.clip(-0.5 * beta, -100, 100))
+
+
+def test_bad_clf_settings():
+    with pytest.raises(ConfigError, match="c_lower"):
+        ClfConfig(c_lower=1.0, c_upper=0.5)
+    with pytest.raises(ConfigError, match="gamma"):
+        ClfConfig(gamma=-1.0)
+    with pytest.raises(ConfigError, match="solver"):
+        ClfConfig(solver="MOSEK")
