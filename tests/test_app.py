@@ -1,4 +1,5 @@
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +12,10 @@ from kexp.errors import ConfigError
 from kexp.identify import KoopmanBilinearModel
 
 GROUPS = {"system": ["vanderpol", "pendulum", "duffing", "linear", "slow_manifold"], "data": ["circle", "box"],
-          "dictionary": ["monomials5"], "identification": ["edmd"]}
+          "dictionary": ["monomials5"], "identification": ["edmd"], "clf": ["sdp"],
+          "controller": ["lmpc", "sontag", "lie_gain", "lqr"], "sim": ["default"]}
+SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
+         "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11"]
 
 
 def _compose(overrides):
@@ -21,29 +25,38 @@ def _compose(overrides):
 
 @pytest.mark.parametrize("group,option", [(g, o) for g, opts in GROUPS.items() for o in opts])
 def test_every_config_option_composes_and_builds(group, option):
-    from kexp.app.build import build_data, build_dictionary, build_identification, build_system
+    from kexp.app.build import (build_clf, build_data, build_dictionary, build_identification, build_sim,
+                                build_system)
     cfg = _compose([f"{group}={option}"])
     system = build_system(cfg.system)
     build_data(cfg.data)
     build_identification(cfg.identification)
     build_dictionary(cfg.dictionary, system.n)
+    build_clf(cfg.clf)
+    build_sim(cfg.sim, system, 0.01)
+    assert cfg.controller.kind in ("lmpc", "explicit", "lqr")
 
 
 def test_default_job_end_to_end_small(tmp_path):
-    cfg = _compose(["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3"])
+    cfg = _compose(SMALL)
     lines = []
     metrics = run(cfg, tmp_path, echo=lines.append)
-    assert metrics["status"] == "identified" and metrics["k"] == 9
+    assert metrics["status"] == "completed" and metrics["model"]["k"] == 9
     assert (tmp_path / "model.npz").exists()
     summary = json.loads((tmp_path / "summary.json").read_text())
     # degree 3 from 20 short trajectories: measured 29.9 % held-out 1-s error
-    assert summary["k"] == 9 and summary["prediction_error"]["1_s"] < 0.4
+    assert summary["model"]["k"] == 9 and summary["model"]["prediction_error"]["1_s"] < 0.4
     assert KoopmanBilinearModel.load(tmp_path / "model.npz").k == 9
     assert any("Koopman bilinear model of vanderpol" in line for line in lines)
+    assert any(line.startswith("result: ") for line in lines)
+    m = summary["metrics"]
+    assert m["max_abs_u"] <= 5.0 and m["fallbacks"] == 0
+    # 2 s from (0.7, -0.5): measured ‖x(2)‖ = 0.27 (halved at least)
+    assert m["final_error"] < 0.5 * (0.7 ** 2 + 0.5 ** 2) ** 0.5
 
 
 def test_unknown_key_is_named(tmp_path):
-    cfg = _compose(["+identification.methd=qr"])
+    cfg = _compose(SMALL + ["+identification.methd=qr"])
     with pytest.raises(ConfigError, match=r"identification\.methd: unknown key"):
         run(cfg, tmp_path, echo=lambda *_: None)
 
@@ -54,3 +67,17 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     assert proc.returncode == 2
     err = proc.stderr.strip().splitlines()
     assert err == ["kexp: error: data.dt=-0.1: the sampling time must be > 0"]
+
+
+@pytest.mark.parametrize("override,needle", [
+    ("controller.u_min=6.0", "controller.u_min=6.0, controller.u_max=5.0"),
+    ("sim.x0=[0.1]", "sim.x0=[0.1]: give 2 finite numbers"),
+    ("clf.c_lower=2.0", "need 0 < c_lower < c_upper"),
+    ("controller.lmpc.horizon=0", "lmpc.horizon=0"),
+    ("+controller.lmpc.foo=1", "controller.lmpc.foo: unknown key"),
+    ("controller.kind=mpc", "controller.kind='mpc'"),
+])
+def test_bad_controller_settings_are_named(tmp_path, override, needle):
+    cfg = _compose(SMALL + [override])
+    with pytest.raises(ConfigError, match=re.escape(needle)):
+        run(cfg, tmp_path, echo=lambda *_: None)

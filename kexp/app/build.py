@@ -3,6 +3,8 @@ past this module."""
 from __future__ import annotations
 
 import dataclasses
+
+import numpy as np
 from typing import Any, Mapping
 
 from ..data import DataConfig, Excitation, IntegratorOptions, RegionFilter, make_sampler
@@ -83,3 +85,57 @@ def build_dictionary(cfg: Mapping[str, Any], n: int, dataset=None) -> Monomials:
 
 def build_identification(cfg: Mapping[str, Any]) -> IdentifyConfig:
     return construct(IdentifyConfig, cfg, "identification")
+
+
+def build_clf(cfg: Mapping[str, Any]):
+    from ..clf import ClfConfig
+    cfg = dict(_plain(cfg))
+    for key in ("region_low", "region_high"):
+        if isinstance(cfg.get(key), list):
+            cfg[key] = tuple(cfg[key])
+    return construct(ClfConfig, cfg, "clf")
+
+
+CONTROLLER_KINDS = ("lmpc", "explicit", "lqr")
+
+
+def build_controller(cfg: Mapping[str, Any], system, model, clf_cfg):
+    """Returns (controller, clf).  The CLF is synthesised for every kind (the LMPC needs it; the others report
+    it)."""
+    from ..clf import synthesize_clf
+    from ..control import ExplicitController, LmpcConfig, LqrController, make_law
+    from ..control.lmpc import Lmpc
+    cfg = dict(_plain(cfg))
+    kind = cfg.pop("kind", None)
+    if kind not in CONTROLLER_KINDS:
+        raise ConfigError(f"controller.kind={kind!r}; valid: {CONTROLLER_KINDS}")
+    allowed = {"law", "law_params", "u_min", "u_max"} | ({"lmpc"} if kind == "lmpc" else set()) \
+        | ({"q", "r"} if kind == "lqr" else set())
+    for key in cfg:
+        if key not in allowed:
+            raise ConfigError(f"controller.{key}: unknown key for kind {kind!r}; valid keys: {sorted(allowed)}")
+    u_min, u_max = cfg.get("u_min", -5.0), cfg.get("u_max", 5.0)
+    if not (np.all(np.isfinite(np.asarray(u_min, float))) and np.all(np.asarray(u_min, float) < np.asarray(u_max, float))):
+        raise ConfigError(f"controller.u_min={u_min}, controller.u_max={u_max}: need finite u_min < u_max")
+    law_name = cfg.get("law", "sontag")
+    law_params = dict(cfg.get("law_params") or {})
+    clf = synthesize_clf(model, clf_cfg, law=law_name, u_min=u_min, u_max=u_max, law_params=law_params)
+    law = make_law(law_name, clf.lyap, u_min, u_max, **law_params)
+    if kind == "lmpc":
+        lmpc_cfg = construct(LmpcConfig, cfg.get("lmpc"), "controller.lmpc")
+        return Lmpc(model, clf, law, lmpc_cfg, u_min, u_max), clf
+    if kind == "explicit":
+        return ExplicitController(law, clf), clf
+    return LqrController(system, u_min, u_max, q=cfg.get("q", 1.0), r=cfg.get("r", 1.0), clf=clf), clf
+
+
+def build_sim(cfg: Mapping[str, Any], system, dt: float):
+    """Returns (SimConfig, x0 (n,), open_loop flag)."""
+    from ..simulate import SimConfig
+    cfg = dict(_plain(cfg))
+    x0 = cfg.pop("x0", None)
+    open_loop = bool(cfg.pop("open_loop", True))
+    x0 = np.asarray(x0, dtype=float) if x0 is not None else None
+    if x0 is None or x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
+        raise ConfigError(f"sim.x0={None if x0 is None else x0.tolist()}: give {system.n} finite numbers")
+    return construct(SimConfig, cfg, "sim", dt=dt), x0, open_loop

@@ -112,6 +112,9 @@ class Lmpc:
         self.x_l = np.concatenate([np.tile(self.u_min, self.nb), [0.0]])
         self.x_u = np.concatenate([np.tile(self.u_max, self.nb), [np.inf]])
         self.reset()
+        # compile (or load from numba's cache) now, not inside the first control step
+        rollout_sensitivity(self.lam, self.B, self.b, model.dt, np.zeros(self.k), np.zeros((self.nb, self.m)),
+                            self.bos)
 
     def reset(self) -> None:
         self._useq = np.zeros((self.cfg.horizon, self.m))  # per-step guess
