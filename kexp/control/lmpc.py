@@ -191,7 +191,6 @@ class Lmpc:
         qp_iters = 0
         res = None
         it = 0
-        Z = None
         for it in range(1, cfg.max_iter + 1):
             Z, H, g, G, h_u = self._qp_data(z0, Ubar, active, rhs_21f, beta0)
             res = self.qp.solve(H, g, G, h_u, self.x_l, self.x_u)
@@ -201,7 +200,7 @@ class Lmpc:
             Unew = np.clip(res.x[: self.nu].reshape(self.nb, self.m), self.u_min, self.u_max)
             step = Unew - Ubar
             if cfg.max_iter > 1:
-                Unew = self._line_search(z0, Ubar, step, active)
+                Unew = self._line_search(z0, Ubar, step, active, beta0, rhs_21f)
             done = np.max(np.abs(Unew - Ubar)) <= cfg.tol
             Ubar = np.ascontiguousarray(Unew)
             if done:
@@ -225,13 +224,16 @@ class Lmpc:
                            solve_time=time.perf_counter() - t0, region=region, active=active, binds=bool(binds),
                            slack=slack, fallback=False, reason="", predicted=Z)
 
-    def _line_search(self, z0, Ubar, step, active):
+    def _line_search(self, z0, Ubar, step, active, beta0, rhs_21f):
+        """Backtracking on the exact merit: cost + slack penalty of (21e) + ρ·violation of (21f) (the warm start
+        may violate (21f), e.g. after a reset; without the last term no step towards feasibility is accepted)."""
         def merit(U):
             Z = rollout(self.lam, self.B, self.b, self.model.dt, z0, np.ascontiguousarray(U), self.bos)
             s = 0.0
             if active == "21e":
                 s = max(0.0, float(np.max(np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:]))) - self.clf.r_hat)
-            return self._exact_cost(Z, U, s)
+            viol = max(0.0, float(beta0 @ U[0]) - rhs_21f) if active == "21f" else 0.0
+            return self._exact_cost(Z, U, s) + self.cfg.slack_weight * viol
         base = merit(Ubar)
         alpha = 1.0
         for _ in range(8):
