@@ -139,3 +139,21 @@ def build_sim(cfg: Mapping[str, Any], system, dt: float):
     if x0 is None or x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
         raise ConfigError(f"sim.x0={None if x0 is None else x0.tolist()}: give {system.n} finite numbers")
     return construct(SimConfig, cfg, "sim", dt=dt), x0, open_loop
+
+
+def build_logging(cfg: Mapping[str, Any]) -> dict:
+    cfg = dict(_plain(cfg))
+    defaults = {"mcap": True, "rrd": True, "prediction_every": 10, "flush_every": 1.0, "progress": "auto"}
+    for key in cfg:
+        if key not in defaults:
+            raise ConfigError(f"logging.{key}: unknown key; valid keys: {sorted(defaults)}")
+    out = {**defaults, **cfg}
+    if not (isinstance(out["prediction_every"], int) and out["prediction_every"] >= 0):
+        raise ConfigError(f"logging.prediction_every={out['prediction_every']}: use an int >= 0 (0: never)")
+    if not out["flush_every"] > 0:
+        raise ConfigError(f"logging.flush_every={out['flush_every']}: use seconds > 0")
+    if out["progress"] not in ("auto", True, False):
+        raise ConfigError(f"logging.progress={out['progress']!r}; valid: auto, true, false")
+    if out["rrd"] and not out["mcap"]:
+        raise ConfigError("logging.rrd=true needs logging.mcap=true (the recording is rendered from the log)")
+    return out

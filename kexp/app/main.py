@@ -1,6 +1,7 @@
 """The ``kexp`` command: a thin Hydra main around :func:`run`."""
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 import time
@@ -12,27 +13,63 @@ import numpy as np
 from omegaconf import DictConfig
 from threadpoolctl import threadpool_limits
 
+from ..clf.levelset import level_set_boundary
 from ..data import collect
 from ..errors import KexpError
 from ..identify import identify
+from ..recording.schema import plain
+from ..recording.writer import RunLogger
 from ..simulate import closed_loop
-from .build import (build_clf, build_controller, build_data, build_dictionary, build_identification, build_sim,
-                    build_system)
+from .build import (build_clf, build_controller, build_data, build_dictionary, build_identification, build_logging,
+                    build_sim, build_system)
+from .progress import Progress
+
+
+def _versions() -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+    out = {}
+    for pkg in ("kexp", "numpy", "scipy", "cvxpy", "clarabel", "piqp", "mcap", "rerun-sdk", "hydra-core", "numba"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def config_hash(cfg_dict: dict) -> str:
+    return hashlib.sha256(json.dumps(plain(cfg_dict), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _to_dict(cfg: Any) -> dict:
+    try:
+        from omegaconf import DictConfig as _DC, OmegaConf
+        if isinstance(cfg, _DC):
+            return OmegaConf.to_container(cfg, resolve=True)
+    except ImportError:  # pragma: no cover
+        pass
+    return dict(cfg)
 
 
 def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
-    data → identification → CLF → controller → closed loop on the true system from ``sim.x0``.  Returns the
-    metrics (also written to ``summary.json``)."""
+    data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
+    ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``."""
     out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    cfg_dict = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    chash = config_hash(cfg_dict)
     # every config section is validated before the long computations start
     system = build_system(cfg["system"])
     sampler, data_cfg = build_data(cfg["data"])
     ident_cfg = build_identification(cfg["identification"])
     clf_cfg = build_clf(cfg["clf"])
     sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt)
-    build_dictionary(cfg["dictionary"], system.n, None) if cfg["dictionary"].get("scale") != "auto" else None
+    log_cfg = build_logging(cfg.get("logging") or {})
+    if cfg["dictionary"].get("scale") != "auto":
+        build_dictionary(cfg["dictionary"], system.n, None)
+    summary_path = out_dir / "summary.json"
+    summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
     dataset = collect(system, sampler, data_cfg)
     dictionary = build_dictionary(cfg["dictionary"], system.n, dataset)
     model = identify(system, dataset, dictionary, ident_cfg)
@@ -40,31 +77,69 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     echo(model.summary())
     controller, clf = build_controller(cfg["controller"], system, model, clf_cfg)
     echo(clf.summary())
-    with threadpool_limits(limits=1):  # BLAS threads on tiny products cost 10-100× (design §2.11)
-        result = closed_loop(system, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop)
+    logger = None
+    if log_cfg["mcap"]:
+        logger = RunLogger(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
+                           prediction_every=log_cfg["prediction_every"])
+        logger.log_config(cfg_dict, chash)
+        logger.log_model(model)
+        logger.log_clf(clf, level_set_boundary(model, clf.lyap, clf.r), level_set_boundary(model, clf.lyap, clf.r_hat))
+    bar = Progress(sim_cfg.n_steps, f"{system.name} closed loop",
+                   enabled=None if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
+
+    def on_step(rec, step):
+        if logger is not None:
+            logger.log_step(rec, step, model)
+        bar.update()
+
+    try:
+        with threadpool_limits(limits=1):  # BLAS threads on tiny products cost 10-100× (design §2.11)
+            result = closed_loop(system, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
+                                 on_step=on_step)
+    finally:
+        bar.close()
     m = result.metrics
+    mdict = m.to_dict()
+    deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
+    timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
+    versions = _versions()
+    files = {"model": str(model_path)}
+    if logger is not None:
+        if result.open_loop is not None:
+            logger.log_open_loop(np.arange(len(result.open_loop)) * sim_cfg.dt, result.open_loop)
+        t_end = float(result.t[-1])
+        logger.log_summary(t_end, result.status, result.message, deterministic, completed=True)
+        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0})
+        logger.close()
+        files["mcap"] = str(logger.path)
+        if log_cfg["rrd"]:
+            from ..recording.render import render
+            files["rrd"] = str(render(logger.path, out_dir / "run.rrd"))
     metrics = {
         "status": result.status,
+        "completed": True,
         "message": result.message,
+        "config_hash": chash,
         "system": system.name,
         "controller": getattr(controller, "name", type(controller).__name__),
         "x0": x0.tolist(),
-        "metrics": m.to_dict(),
+        "metrics": mdict,
         "model": {"k": model.k, "cond_phi_x": model.report["cond_phi_x"],
                   "prediction_error": model.report["prediction_error"],
                   "input_projection_residual": model.report["input_projection_residual"],
                   "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
+        "versions": versions,
         "wall_time_s": time.perf_counter() - t0,
-        "files": {"model": str(model_path)},
+        "files": files,
     }
-    (out_dir / "summary.json").write_text(json.dumps(metrics, indent=2, default=float))
+    summary_path.write_text(json.dumps(plain(metrics), indent=2))
     echo(f"result: {'SUCCESS' if m.success else 'FAILED'} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
          f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "
          f"max {m.solve_time_max * 1e3:.2f} ms")
-    echo(f"files: {out_dir.resolve()}")
+    echo(f"files: {out_dir.resolve()} ({', '.join(Path(f).name for f in files.values())})")
     return metrics
 
 

@@ -112,10 +112,10 @@ def _metrics(t, x, u, records, x_eq, cfg: SimConfig) -> RunMetrics:
 
 
 def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, model=None, lyap=None,
-                open_loop: bool = False, progress=None) -> RunResult:
+                open_loop: bool = False, on_step=None) -> RunResult:
     """Simulate ``controller`` on ``system`` from ``x0`` (n,).  ``model`` lifts x to z for controllers that need
-    it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the records.  ``progress`` is called
-    with the step index (for progress bars)."""
+    it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the records.  ``on_step(record,
+    control_step)`` is called after each control decision, before the step is integrated (logging, progress)."""
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
         raise ConfigError(f"initial condition {x0.tolist()}: need {system.n} finite numbers")
@@ -140,11 +140,14 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
         us[k] = u
         V = float(lyap.value(z)) if lyap is not None else float("nan")
         Vdot = float(lyap.vdot(z, u)) if lyap is not None else float("nan")
-        records.append(StepRecord(k=k, t=float(t[k]), x=xs[k].copy(), z=z, u=u.copy(), V=V, Vdot=Vdot,
-                                  region=step.region, active=step.active, binds=step.binds, slack=step.slack,
-                                  status=step.status, qp_status=step.qp_status, iterations=step.iterations,
-                                  qp_iterations=step.qp_iterations, solve_time=step.solve_time,
-                                  fallback=step.fallback, reason=step.reason))
+        rec = StepRecord(k=k, t=float(t[k]), x=xs[k].copy(), z=z, u=u.copy(), V=V, Vdot=Vdot,
+                         region=step.region, active=step.active, binds=step.binds, slack=step.slack,
+                         status=step.status, qp_status=step.qp_status, iterations=step.iterations,
+                         qp_iterations=step.qp_iterations, solve_time=step.solve_time,
+                         fallback=step.fallback, reason=step.reason)
+        records.append(rec)
+        if on_step is not None:
+            on_step(rec, step)
         try:
             nxt = integrate(system, xs[k][None], t[k:k + 2], u[None, None], config.integrator)[0, 1]
         except IntegrationFailure as exc:
@@ -154,8 +157,6 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
             status, message, last = "diverged", f"state left ‖x‖ ≤ {config.diverge_bound:g} at t={t[k + 1]:.3f}", k
             break
         xs[k + 1] = nxt
-        if progress is not None:
-            progress(k)
     t, xs, us = t[:last + 1], xs[:last + 1], us[:last]
     ol = None
     if open_loop:

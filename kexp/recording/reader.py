@@ -1,0 +1,61 @@
+"""Read a kexp run log, including what a truncated file (a killed run) still holds."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mcap.reader import NonSeekingReader
+
+from ..errors import KexpError
+
+
+class LogError(KexpError, OSError):
+    """The file is missing or not an MCAP log at all."""
+
+
+@dataclass
+class RunLog:
+    path: Path
+    channels: dict = field(default_factory=dict)   # topic -> list of (log_time_ns, message dict)
+    truncated: bool = False
+    warning: str = ""
+
+    def messages(self, topic: str) -> list[dict]:
+        return [m for _, m in self.channels.get(topic, [])]
+
+    def one(self, topic: str) -> dict | None:
+        msgs = self.messages(topic)
+        return msgs[0] if msgs else None
+
+    @property
+    def completed(self) -> bool:
+        s = self.one("/summary")
+        return bool(s and s.get("completed"))
+
+
+def read_log(path: str | Path) -> RunLog:
+    """Messages of every channel in log-time order.  A file cut short (killed writer) yields what its complete
+    chunks hold, with ``truncated=True`` and a warning; a file that is not MCAP raises :class:`LogError`."""
+    path = Path(path)
+    if not path.exists():
+        raise LogError(f"log {path} does not exist")
+    log = RunLog(path=path)
+    with open(path, "rb") as f:
+        head = f.read(8)
+        if head[:5] != b"\x89MCAP":
+            raise LogError(f"{path} is not an MCAP file (bad magic); pass a run.mcap written by kexp")
+        f.seek(0)
+        reader = NonSeekingReader(f, validate_crcs=True)
+        try:
+            for _schema, channel, message in reader.iter_messages(log_time_order=False):
+                log.channels.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+        except Exception as exc:  # noqa: BLE001 - any decode error at the tail means a cut file
+            log.truncated = True
+            log.warning = (f"{path.name} is truncated ({type(exc).__name__}); read up to the last complete chunk "
+                           f"({sum(len(v) for v in log.channels.values())} messages)")
+    for topic in log.channels:
+        log.channels[topic].sort(key=lambda tm: tm[0])
+    if not log.truncated and not log.completed:
+        log.warning = f"{path.name} has no completed /summary: the run did not finish"
+    return log

@@ -1,0 +1,101 @@
+"""RunLogger: one MCAP file per run, written as the run goes, flushed every ``flush_every`` seconds of
+simulated time so a killed run keeps all but its last second."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from .schema import CHANNELS, encode
+
+LIBRARY = "kexp-recording/1"   # fixed, so the file bytes do not change with the mcap package version
+
+
+def _ns(t: float) -> int:
+    return int(round(float(t) * 1e9))
+
+
+class RunLogger:
+    def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "wb")
+        self._w = Writer(self._f, compression=CompressionType.ZSTD, chunk_size=1 << 20)
+        self._w.start(profile="", library=LIBRARY)
+        self._ch = {}
+        for topic, schema in CHANNELS.items():
+            sid = self._w.register_schema(name=schema["title"], encoding="jsonschema",
+                                          data=json.dumps(schema, sort_keys=True).encode())
+            self._ch[topic] = self._w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        self._seq = {t: 0 for t in CHANNELS}
+        self.flush_every = flush_every
+        self.prediction_every = prediction_every
+        self._next_flush = flush_every
+        self._closed = False
+
+    def write(self, topic: str, t: float, payload: dict) -> None:
+        ns = _ns(t)
+        self._w.add_message(channel_id=self._ch[topic], log_time=ns, publish_time=ns, data=encode(payload),
+                            sequence=self._seq[topic])
+        self._seq[topic] += 1
+
+    # -- typed helpers -----------------------------------------------------------------------------------------
+    def log_config(self, config: dict, config_hash: str) -> None:
+        self.write("/config", 0.0, {"config": config, "config_hash": config_hash})
+
+    def log_model(self, model) -> None:
+        r = model.report
+        self.write("/model", 0.0, {
+            "eigenvalues_re": model.eigenvalues.real, "eigenvalues_im": model.eigenvalues.imag,
+            "Lambda": model.Lambda, "B": model.B, "b": model.b, "C": model.C, "dt": model.dt, "k": model.k,
+            "m": model.m, "n": model.n, "state_names": list(model.state_names),
+            "report": {key: r[key] for key in ("cond_phi_x", "prediction_error", "input_projection_residual",
+                                               "drift_at_equilibrium", "kept", "dropped", "warnings") if key in r}})
+
+    def log_clf(self, clf, boundary_r=None, boundary_r_hat=None) -> None:
+        self.write("/clf", 0.0, {"P": clf.P, "r": clf.r, "r_hat": clf.r_hat, "status": clf.status,
+                                 "certificate": clf.certificate.to_dict(),
+                                 "boundary_r": [] if boundary_r is None else boundary_r,
+                                 "boundary_r_hat": [] if boundary_r_hat is None else boundary_r_hat})
+
+    def log_step(self, rec, control_step=None, model=None) -> None:
+        self.write("/step", rec.t, {
+            "k": rec.k, "t": rec.t, "x": rec.x, "z": rec.z, "u": rec.u, "V": rec.V, "Vdot": rec.Vdot,
+            "region": rec.region, "active": rec.active, "binds": rec.binds, "slack": rec.slack,
+            "status": rec.status, "qp_status": rec.qp_status, "iterations": rec.iterations,
+            "qp_iterations": rec.qp_iterations, "fallback": rec.fallback, "reason": rec.reason})
+        self.write("/timing", rec.t, {"k": rec.k, "t": rec.t, "solve_time": rec.solve_time})
+        if (self.prediction_every and control_step is not None and control_step.predicted is not None
+                and model is not None and rec.k % self.prediction_every == 0):
+            Z = control_step.predicted
+            self.write("/prediction", rec.t, {"k": rec.k, "t": rec.t,
+                                              "t_pred": rec.t + model.dt * np.arange(len(Z)),
+                                              "x_pred": model.to_state(Z)})
+        if rec.t + 1e-12 >= self._next_flush:
+            self._w.flush()
+            self._next_flush += self.flush_every
+
+    def log_open_loop(self, t: np.ndarray, x: np.ndarray) -> None:
+        for ti, xi in zip(t, x):
+            self.write("/open_loop", float(ti), {"t": float(ti), "x": xi})
+
+    def log_summary(self, t: float, status: str, message: str, metrics: dict, completed: bool) -> None:
+        self.write("/summary", t, {"status": status, "message": message, "metrics": metrics,
+                                   "completed": completed})
+
+    def log_run_info(self, t: float, versions: dict, timing: dict) -> None:
+        self.write("/run_info", t, {"versions": versions, "timing": timing})
+
+    def close(self) -> None:
+        if not self._closed:
+            self._w.finish()
+            self._f.close()
+            self._closed = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
