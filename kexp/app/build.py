@@ -99,12 +99,22 @@ def build_clf(cfg: Mapping[str, Any]):
 CONTROLLER_KINDS = ("lmpc", "explicit", "lqr")
 
 
-def build_controller(cfg: Mapping[str, Any], system, model, clf_cfg):
-    """Returns (controller, clf).  The CLF is synthesised for every kind (the LMPC needs it; the others report
-    it)."""
-    from ..clf import synthesize_clf
-    from ..control import ExplicitController, LmpcConfig, LqrController, make_law
-    from ..control.lmpc import Lmpc
+@dataclasses.dataclass(frozen=True)
+class ControllerSpec:
+    """The validated controller section: built before any long computation."""
+
+    kind: str
+    law: str
+    law_params: dict
+    u_min: float | tuple
+    u_max: float | tuple
+    lmpc: object = None        # LmpcConfig for kind 'lmpc'
+    q: float = 1.0
+    r: float = 1.0
+
+
+def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
+    from ..control import LAWS, LmpcConfig
     cfg = dict(_plain(cfg))
     kind = cfg.pop("kind", None)
     if kind not in CONTROLLER_KINDS:
@@ -115,18 +125,31 @@ def build_controller(cfg: Mapping[str, Any], system, model, clf_cfg):
         if key not in allowed:
             raise ConfigError(f"controller.{key}: unknown key for kind {kind!r}; valid keys: {sorted(allowed)}")
     u_min, u_max = cfg.get("u_min", -5.0), cfg.get("u_max", 5.0)
-    if not (np.all(np.isfinite(np.asarray(u_min, float))) and np.all(np.asarray(u_min, float) < np.asarray(u_max, float))):
+    lo, hi = np.asarray(u_min, float), np.asarray(u_max, float)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
         raise ConfigError(f"controller.u_min={u_min}, controller.u_max={u_max}: need finite u_min < u_max")
-    law_name = cfg.get("law", "sontag")
-    law_params = dict(cfg.get("law_params") or {})
-    clf = synthesize_clf(model, clf_cfg, law=law_name, u_min=u_min, u_max=u_max, law_params=law_params)
-    law = make_law(law_name, clf.lyap, u_min, u_max, **law_params)
-    if kind == "lmpc":
-        lmpc_cfg = construct(LmpcConfig, cfg.get("lmpc"), "controller.lmpc")
-        return Lmpc(model, clf, law, lmpc_cfg, u_min, u_max), clf
-    if kind == "explicit":
-        return ExplicitController(law, clf), clf
-    return LqrController(system, u_min, u_max, q=cfg.get("q", 1.0), r=cfg.get("r", 1.0), clf=clf), clf
+    law = cfg.get("law", "sontag")
+    if law not in LAWS:
+        raise ConfigError(f"controller.law={law!r}; valid: {sorted(LAWS)}")
+    q, r = float(cfg.get("q", 1.0)), float(cfg.get("r", 1.0))
+    if not (q > 0 and r > 0):
+        raise ConfigError(f"controller.q={q}, controller.r={r}: both must be > 0")
+    lmpc = construct(LmpcConfig, cfg.get("lmpc"), "controller.lmpc") if kind == "lmpc" else None
+    to_t = lambda v: tuple(v) if isinstance(v, list) else v  # noqa: E731
+    return ControllerSpec(kind=kind, law=law, law_params=dict(cfg.get("law_params") or {}), u_min=to_t(u_min),
+                          u_max=to_t(u_max), lmpc=lmpc, q=q, r=r)
+
+
+def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_every: int = 0):
+    """The controller for a validated spec, an identified model and its CLF."""
+    from ..control import ExplicitController, LqrController, make_law
+    from ..control.lmpc import Lmpc
+    law = make_law(spec.law, clf.lyap, spec.u_min, spec.u_max, **spec.law_params)
+    if spec.kind == "lmpc":
+        return Lmpc(model, clf, law, spec.lmpc, spec.u_min, spec.u_max, prediction_every=prediction_every)
+    if spec.kind == "explicit":
+        return ExplicitController(law, clf)
+    return LqrController(system, spec.u_min, spec.u_max, q=spec.q, r=spec.r, clf=clf)
 
 
 def build_sim(cfg: Mapping[str, Any], system, dt: float):

@@ -20,8 +20,11 @@ from ..identify import identify
 from ..recording.schema import plain
 from ..recording.writer import RunLogger
 from ..simulate import closed_loop
-from .build import (build_clf, build_controller, build_data, build_dictionary, build_identification, build_logging,
-                    build_sim, build_system)
+from ..clf import load_clf, save_clf, synthesize_clf
+from ..identify import FORMAT_VERSION, KoopmanBilinearModel
+from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
+                    build_identification, build_logging, build_sim, build_system)
+from .cache import Cache, key_of
 from .progress import Progress
 
 
@@ -66,16 +69,32 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     clf_cfg = build_clf(cfg["clf"])
     sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt)
     log_cfg = build_logging(cfg.get("logging") or {})
+    spec = build_controller_spec(cfg["controller"])
+    cache_cfg = dict(cfg.get("cache") or {})
+    cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))
     if cfg["dictionary"].get("scale") != "auto":
         build_dictionary(cfg["dictionary"], system.n, None)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
-    dataset = collect(system, sampler, data_cfg)
-    dictionary = build_dictionary(cfg["dictionary"], system.n, dataset)
-    model = identify(system, dataset, dictionary, ident_cfg)
+
+    def identify_now():
+        dataset = collect(system, sampler, data_cfg)
+        return identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
+
+    ident_parts = [cfg_dict.get(k) for k in ("system", "data", "dictionary", "identification")]
+    model_key = key_of("model", FORMAT_VERSION, *ident_parts)
+    model = cache.get_or_create(f"model-{model_key}.npz", identify_now, lambda m, p: m.save(p),
+                                KoopmanBilinearModel.load)
     model_path = model.save(out_dir / "model.npz")
     echo(model.summary())
-    controller, clf = build_controller(cfg["controller"], system, model, clf_cfg)
+    clf_key = key_of("clf", model_key, cfg_dict.get("clf"), spec.law, spec.law_params, spec.u_min, spec.u_max)
+    clf = cache.get_or_create(
+        f"clf-{clf_key}.npz",
+        lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
+                               law_params=spec.law_params),
+        save_clf, lambda p: load_clf(p, model, clf_cfg))
+    controller = build_controller(spec, system, model, clf,
+                                  prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0)
     echo(clf.summary())
     logger = None
     if log_cfg["mcap"]:
@@ -130,6 +149,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
                   "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
         "versions": versions,
+        "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
         "wall_time_s": time.perf_counter() - t0,
         "files": files,
     }

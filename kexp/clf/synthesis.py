@@ -129,3 +129,24 @@ def clf_from_P(model, P, config: ClfConfig = ClfConfig(), *, law="sontag", u_min
     report = check_certificate(model, lyap, h, config)
     return Clf(P=lyap.P, lyap=lyap, status=status, solver=config.solver, objective=objective, sigma=sigma,
                certificate=report, config=config)
+
+
+def save_clf(clf: Clf, path) -> None:
+    """P, the SDP facts and the certificate report as one .npz (no pickle); the model is not stored."""
+    import json
+    np.savez(path, P=clf.P, meta=np.array(json.dumps({
+        "status": clf.status, "solver": clf.solver, "objective": clf.objective, "sigma": clf.sigma,
+        "certificate": clf.certificate.to_dict()}, default=float)))
+
+
+def load_clf(path, model, config: ClfConfig) -> Clf:
+    import json
+    with np.load(path, allow_pickle=False) as f:
+        P = f["P"]
+        meta = json.loads(str(f["meta"]))
+    cert = dict(meta["certificate"])
+    cert.pop("verdict", None)
+    cert["global_mu"] = tuple(cert["global_mu"])
+    return Clf(P=P, lyap=QuadraticLyapunov.from_model(model, P), status=meta["status"], solver=meta["solver"],
+               objective=meta["objective"], sigma=meta["sigma"], certificate=CertificateReport(**cert),
+               config=config)

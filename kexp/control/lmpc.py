@@ -90,9 +90,11 @@ class Lmpc:
 
     name = "lmpc"
 
-    def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, record_prediction: bool = False):
+    def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, prediction_every: int = 0):
+        """``prediction_every``: return the exact predicted z over the horizon every this many steps (0: only
+        when (21e) needs it); it costs one extra rollout."""
         self.model, self.clf, self.law, self.cfg = model, clf, law, config
-        self.record_prediction = record_prediction
+        self.prediction_every = int(prediction_every)
         self.m, self.k = model.m, model.k
         self.u_min = np.broadcast_to(np.asarray(u_min, float), (self.m,)).copy()
         self.u_max = np.broadcast_to(np.asarray(u_max, float), (self.m,)).copy()
@@ -118,6 +120,7 @@ class Lmpc:
 
     def reset(self) -> None:
         self._useq = np.zeros((self.cfg.horizon, self.m))  # per-step guess
+        self._count = 0
 
     def _blocks_from_steps(self, useq: np.ndarray) -> np.ndarray:
         starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]])
@@ -208,7 +211,9 @@ class Lmpc:
         u0 = Ubar[0].copy()
         slack, binds = 0.0, False
         Z = None
-        if active == "21e" or self.record_prediction:  # the exact prediction of the applied plan
+        want = self.prediction_every > 0 and self._count % self.prediction_every == 0
+        self._count += 1
+        if active == "21e" or want:  # the exact prediction of the applied plan
             Z = rollout(self.lam, self.B, self.b, self.model.dt, z0, Ubar, self.bos)
         if active == "21e":
             vmax = float(np.max(np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:])))

@@ -1,0 +1,126 @@
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from kexp.app import golden
+from kexp.app.main import CONF_DIR, run
+from kexp.recording import diff_logs, read_log
+from kexp.recording.diff import main as diff_main
+from kexp.recording.writer import RunLogger
+
+SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
+         "controller.lmpc.blocks=null", "sim.T=1.0", "clf.grid=11", "logging.rrd=false", "logging.progress=false",
+         "logging.prediction_every=10", "logging.flush_every=0.25"]
+
+
+def _run(tmp, overrides=()):
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=SMALL + list(overrides))
+    run(cfg, tmp, echo=lambda *_: None)
+    return Path(tmp) / "run.mcap"
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory):
+    a = _run(tmp_path_factory.mktemp("a"))
+    b = _run(tmp_path_factory.mktemp("b"))
+    return a, b
+
+
+def _copy_with(src: Path, dst: Path, edit) -> None:
+    """Rewrite a log message by message, letting ``edit(topic, payload)`` change payloads in place."""
+    log = read_log(src)
+    lg = RunLogger(dst)
+    for topic, msgs in log.channels.items():
+        for t_ns, payload in msgs:
+            edit(topic, payload)
+            lg.write(topic, t_ns / 1e9, payload)
+    lg.close()
+
+
+def test_log_holds_every_step_and_the_run_facts(two_runs):
+    log = read_log(two_runs[0])
+    steps = log.messages("/step")
+    assert len(steps) == 100 and [s["k"] for s in steps] == list(range(100))
+    assert set(steps[0]) >= {"x", "z", "u", "V", "Vdot", "region", "active", "binds", "slack", "status",
+                             "qp_status", "iterations", "fallback"}
+    assert "solve_time" not in steps[0] and len(log.messages("/timing")) == 100
+    assert len(log.messages("/prediction")) == 10 and len(log.messages("/prediction")[0]["x_pred"]) == 21
+    assert len(log.messages("/open_loop")) == 101
+    assert log.completed and not log.truncated
+    model = log.one("/model")
+    assert model["k"] == 9 and len(model["Lambda"]) == 9
+    clf = log.one("/clf")
+    assert clf["r"] > clf["r_hat"] > 0 and "verdict" in clf["certificate"]
+    # log times are simulation time
+    assert [t for t, _ in log.channels["/step"]][:3] == [0, 10_000_000, 20_000_000]
+
+
+def test_repeated_run_is_identical_on_every_deterministic_channel(two_runs):
+    res = diff_logs(*two_runs)
+    assert res.equal, res.report()
+    la, lb = read_log(two_runs[0]), read_log(two_runs[1])
+    for topic in ("/config", "/model", "/clf", "/step", "/prediction", "/open_loop", "/summary"):
+        assert [json.dumps(m, sort_keys=True) for m in la.messages(topic)] == \
+               [json.dumps(m, sort_keys=True) for m in lb.messages(topic)]
+    # the wall-clock channel differs (solve times), and is compared only on request
+    assert not diff_logs(*two_runs, include_wall_clock=True).equal
+
+
+def test_a_changed_input_is_reported_at_its_step_and_field(two_runs, tmp_path):
+    changed = tmp_path / "changed.mcap"
+
+    def edit(topic, payload):
+        if topic == "/step" and payload["k"] == 57:
+            payload["u"][0] += 1e-3
+    _copy_with(two_runs[0], changed, edit)
+    res = diff_logs(two_runs[0], changed)
+    assert not res.equal
+    f = res.first
+    assert (f.channel, f.step, f.field) == ("/step", 57, "u[0]")
+    assert abs(f.b - f.a - 1e-3) < 1e-12
+    assert res.per_channel["/step"] == (100, 1)
+    # within tolerance it is equal
+    assert diff_logs(two_runs[0], changed, atol=2e-3).equal
+
+
+def test_truncated_log_still_reads_and_diffs_with_a_warning(two_runs, tmp_path):
+    data = two_runs[0].read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    log = read_log(cut)
+    assert log.truncated and "truncated" in log.warning and not log.completed
+    assert 0 < len(log.messages("/step")) < 100
+    res = diff_logs(two_runs[0], cut)
+    assert not res.equal and res.warnings and res.first.field == "message count"
+
+
+def test_cli_exit_codes(two_runs, tmp_path, capsys):
+    assert diff_main([str(two_runs[0]), str(two_runs[1])]) == 0
+    changed = tmp_path / "c.mcap"
+    _copy_with(two_runs[0], changed, lambda t, p: p.update(V=p["V"] * 2) if t == "/step" and p["k"] == 3 else None)
+    assert diff_main([str(two_runs[0]), str(changed)]) == 1
+    out = capsys.readouterr().out
+    assert "channel /step, step 3" in out and "field V" in out
+    bogus = tmp_path / "bogus.mcap"
+    bogus.write_text("not mcap")
+    assert diff_main([str(two_runs[0]), str(bogus)]) == 2
+    proc = subprocess.run(["kexp-diff", str(two_runs[0]), str(tmp_path / "no.mcap")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.strip().startswith("kexp-diff: error:")
+
+
+@pytest.mark.parametrize("name", sorted(golden.GOLDEN))
+def test_golden_recording(name, tmp_path):
+    """Re-run each paper experiment's golden config and diff against the committed recording.  The tolerance
+    allows for last-bit differences of BLAS across machines; regenerate with `python -m kexp.app.golden`."""
+    committed = golden.RECORDINGS / f"{name}.mcap"
+    assert committed.exists(), "run `python -m kexp.app.golden` and commit recordings/"
+    new = golden.record(name, tmp_path / f"{name}.mcap")
+    res = diff_logs(committed, new, rtol=1e-6, atol=1e-9)
+    assert res.equal, res.report()
+    assert len(read_log(committed).messages("/step")) == 200
