@@ -133,7 +133,10 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
         files["mcap"] = str(logger.path)
         if log_cfg["rrd"]:
             from ..recording.render import render
-            files["rrd"] = str(render(logger.path, out_dir / "run.rrd"))
+            try:
+                files["rrd"] = str(render(logger.path, out_dir / "run.rrd"))
+            except KexpError as exc:  # the run and its log are complete; say why there is no recording
+                echo(f"warning: no run.rrd: {exc} (render later with `kexp-render {logger.path}`)")
     metrics = {
         "status": result.status,
         "completed": True,

@@ -40,6 +40,8 @@ def read_log(path: str | Path) -> RunLog:
     path = Path(path)
     if not path.exists():
         raise LogError(f"log {path} does not exist")
+    if not path.is_file():
+        raise LogError(f"{path} is not a file; pass the run.mcap inside a run folder")
     log = RunLog(path=path)
     with open(path, "rb") as f:
         head = f.read(8)

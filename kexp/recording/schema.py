@@ -21,7 +21,7 @@ CHANNELS: dict[str, dict] = {
     "/model": {"title": "kexp.Model", "type": "object",
                "properties": {"eigenvalues_re": VEC, "eigenvalues_im": VEC, "Lambda": MAT,
                               "B": {"type": "array", "items": MAT}, "b": MAT, "C": MAT, "dt": NUM,
-                              "k": NUM, "m": NUM, "n": NUM, "state_names": {"type": "array"},
+                              "k": NUM, "m": NUM, "n": NUM, "state_names": {"type": "array"}, "x_eq": VEC,
                               "report": {"type": "object"}}},
     "/clf": {"title": "kexp.Clf", "type": "object",
              "properties": {"P": MAT, "r": NUM, "r_hat": NUM, "status": {"type": "string"},
@@ -55,6 +55,8 @@ def plain(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [plain(v) for v in obj]
     if isinstance(obj, np.ndarray):
+        if obj.dtype.kind in "fiub" and (obj.dtype.kind != "f" or np.isfinite(obj).all()):
+            return obj.tolist()  # fast path: already JSON-safe numbers
         return plain(obj.tolist())
     if isinstance(obj, (bool, np.bool_)):
         return bool(obj)

@@ -50,7 +50,7 @@ class RunLogger:
         self.write("/model", 0.0, {
             "eigenvalues_re": model.eigenvalues.real, "eigenvalues_im": model.eigenvalues.imag,
             "Lambda": model.Lambda, "B": model.B, "b": model.b, "C": model.C, "dt": model.dt, "k": model.k,
-            "m": model.m, "n": model.n, "state_names": list(model.state_names),
+            "m": model.m, "n": model.n, "state_names": list(model.state_names), "x_eq": model.x_eq,
             "report": {key: r[key] for key in ("cond_phi_x", "prediction_error", "input_projection_residual",
                                                "drift_at_equilibrium", "kept", "dropped", "warnings") if key in r}})
 
