@@ -76,6 +76,10 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     ("controller.lmpc.horizon=0", "lmpc.horizon=0"),
     ("+controller.lmpc.foo=1", "controller.lmpc.foo: unknown key"),
     ("controller.kind=mpc", "controller.kind='mpc'"),
+    ("data.dt=abc", "data.dt='abc': expected a number"),
+    ("controller.lmpc.horizon=1.5", "controller.lmpc.horizon=1.5: expected an integer"),
+    ("controller.lmpc.use_21e=3", "controller.lmpc.use_21e=3: expected true or false"),
+    ("logging.prediction_every=-1", "logging.prediction_every=-1"),
 ])
 def test_bad_controller_settings_are_named(tmp_path, override, needle):
     cfg = _compose(SMALL + [override])

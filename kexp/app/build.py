@@ -3,6 +3,7 @@ past this module."""
 from __future__ import annotations
 
 import dataclasses
+import typing
 
 import numpy as np
 from typing import Any, Mapping
@@ -24,13 +25,39 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
+_SCALARS = {float: ("a number", (int, float)), int: ("an integer", (int,)), bool: ("true or false", (bool,)),
+            str: ("a string", (str,))}
+
+
+def _check_type(where: str, key: str, value: Any, hint: Any) -> None:
+    """Reject a value whose type cannot match the field's annotation (float, int, bool, str, optionally None)."""
+    args = typing.get_args(hint)
+    allowed = [a for a in (args if args else (hint,)) if a is not type(None)]
+    if value is None:
+        if type(None) in args or not args and hint is type(None):
+            return
+        if len(allowed) == 1 and allowed[0] in _SCALARS:
+            raise ConfigError(f"{where}.{key}=null: expected {_SCALARS[allowed[0]][0]}")
+        return
+    if len(allowed) != 1 or allowed[0] not in _SCALARS:
+        return  # tuples, unions of several kinds, nested objects: validated by the class itself
+    label, types = _SCALARS[allowed[0]]
+    ok = isinstance(value, types) and not (allowed[0] in (int, float) and isinstance(value, bool))
+    if not ok:
+        raise ConfigError(f"{where}.{key}={value!r}: expected {label}")
+
+
 def construct(cls, mapping: Mapping[str, Any] | None, where: str, **overrides):
-    """``cls(**mapping)`` with unknown keys reported by name, e.g. 'data.filter.hgih: unknown key; valid: …'."""
+    """``cls(**mapping)`` with unknown keys and wrongly typed values reported by name, e.g.
+    'data.filter.hgih: unknown key; valid: …' or "data.dt='abc': expected a number"."""
     mapping = dict(_plain(mapping) or {})
     names = {f.name for f in dataclasses.fields(cls) if f.init}
     for key in mapping:
         if key not in names:
             raise ConfigError(f"{where}.{key}: unknown key; valid keys: {sorted(names)}")
+    hints = typing.get_type_hints(cls)
+    for key, value in mapping.items():
+        _check_type(where, key, value, hints.get(key))
     mapping.update(overrides)
     try:
         return cls(**mapping)
