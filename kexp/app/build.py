@@ -185,7 +185,12 @@ def build_sim(cfg: Mapping[str, Any], system, dt: float):
     cfg = dict(_plain(cfg))
     x0 = cfg.pop("x0", None)
     open_loop = bool(cfg.pop("open_loop", True))
-    x0 = np.asarray(x0, dtype=float) if x0 is not None else None
+    raw = x0
+    try:
+        x0 = np.asarray(x0, dtype=float) if x0 is not None else None
+    except (TypeError, ValueError):
+        raise ConfigError(f"sim.x0={raw!r}: give {system.n} finite numbers as a list, e.g. sim.x0=[0.5,-0.5] "
+                          "(without quotes around the list)") from None
     if x0 is None or x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
         raise ConfigError(f"sim.x0={None if x0 is None else x0.tolist()}: give {system.n} finite numbers")
     return construct(SimConfig, cfg, "sim", dt=dt), x0, open_loop

@@ -122,7 +122,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
     timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
     versions = _versions()
-    files = {"model": str(model_path)}
+    files = {"model": model_path.name}
     if logger is not None:
         if result.open_loop is not None:
             logger.log_open_loop(np.arange(len(result.open_loop)) * sim_cfg.dt, result.open_loop)
@@ -130,11 +130,11 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
         logger.log_summary(t_end, result.status, result.message, deterministic, completed=True)
         logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0})
         logger.close()
-        files["mcap"] = str(logger.path)
+        files["mcap"] = logger.path.name
         if log_cfg["rrd"]:
             from ..recording.render import render
             try:
-                files["rrd"] = str(render(logger.path, out_dir / "run.rrd"))
+                files["rrd"] = render(logger.path, out_dir / "run.rrd").name
             except KexpError as exc:  # the run and its log are complete; say why there is no recording
                 echo(f"warning: no run.rrd: {exc} (render later with `kexp-render {logger.path}`)")
     metrics = {
@@ -162,7 +162,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "
          f"max {m.solve_time_max * 1e3:.2f} ms")
-    echo(f"files: {out_dir.resolve()} ({', '.join(Path(f).name for f in files.values())})")
+    echo(f"files: {out_dir.resolve()} ({', '.join(files.values())})")
     return metrics
 
 
@@ -173,11 +173,19 @@ CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
 def _hydra_main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+    hc = HydraConfig.get()
+    out_dir = Path(hc.runtime.output_dir)
     try:
-        run(cfg, HydraConfig.get().runtime.output_dir)
-    except KexpError as exc:  # bad input: one line, exit code 2, no traceback
+        run(cfg, out_dir)
+    except KexpError as exc:  # bad input or a failed stage: one line, no traceback
         print(f"kexp: error: {exc}", file=sys.stderr)
-        sys.exit(2)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "summary.json").write_text(json.dumps(
+            {"status": "error", "completed": False, "message": str(exc), "error_type": type(exc).__name__},
+            indent=2))
+        if hc.mode != RunMode.MULTIRUN:
+            sys.exit(2)  # a single run: exit code 2; in a sweep the other jobs go on, the report counts this one
 
 
 def main() -> None:

@@ -1,0 +1,540 @@
+"""``kexp-report``: one table (and a few pictures) for a Hydra sweep of ``kexp`` runs.
+
+    kexp --multirun hydra/launcher=joblib 'sim.x0=[0.5,0.5],[-0.5,0.5]' clf.gamma=1,2
+    kexp-report multirun/2025-01-01/12-00-00            # writes report.csv, report.md, ... into that folder
+
+:func:`aggregate` finds every job folder under the sweep folder (a folder with a ``summary.json`` or a
+``.hydra/overrides.yaml``), reads its ``summary.json`` and the job's overrides, and returns one row per job.
+A job that did not complete is never dropped: it gets a row with its ``reason`` (no summary.json, interrupted,
+diverged, unreadable), and a job that the sweep planned (``multirun.yaml``, basic sweeper) but never started
+gets a row too.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import statistics
+import sys
+from pathlib import Path
+from typing import Any, Iterable
+
+from ..errors import KexpError
+
+X0_KEY = "sim.x0"
+CSV_NAME, MD_NAME, SUMMARY_CSV_NAME = "report.csv", "report.md", "report_summary.csv"
+PICTURES = {"roa": "roa.png", "cost": "cost_hist.png", "solve_time": "solve_time_hist.png"}
+CSV_COLUMNS = ["job", "overrides", "system", "controller", "x0", "status", "success", "final_error", "cost",
+               "settling_time_s", "max_abs_u", "fallbacks", "solve_median_ms", "solve_p99_ms", "certificate",
+               "certificate_verdict", "clf_status", "wall_time_s", "reason", "all_overrides", "path"]
+SUMMARY_COLUMNS = ["group", "runs", "completed", "failed", "successes", "success_rate", "cost_median", "cost_worst",
+                   "solve_median_ms", "solve_p99_worst_ms"]
+NO_MATPLOTLIB = "pictures skipped: matplotlib is not installed (pip install matplotlib)"
+
+
+class ReportError(KexpError):
+    """The sweep folder is missing or holds no runs."""
+
+
+# ---------------------------------------------------------------------------------------------------- overrides
+def _parser():
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    return OverridesParser.create()
+
+
+def _split_override(text: str) -> tuple[str, str]:
+    """'sim.x0=[0.5,0.5]' -> ('sim.x0', '[0.5,0.5]'); the key keeps Hydra's +/++/~ prefix."""
+    key, _, value = text.partition("=")
+    return key.strip(), value.strip()
+
+
+def _x0_from_override(value: str) -> list[float] | None:
+    try:
+        parsed = _parser().parse_override(f"{X0_KEY}={value}").value()
+        return [float(v) for v in parsed]
+    except Exception:  # not a list of numbers: leave the row's x0 empty
+        return None
+
+
+def _read_overrides(job: Path) -> list[str] | None:
+    path = job / ".hydra" / "overrides.yaml"
+    if not path.is_file():
+        return None
+    import yaml
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return None
+    return [str(o) for o in data] if isinstance(data, list) else None
+
+
+def _planned_jobs(sweep_root: Path) -> tuple[list[list[str]] | None, list[str]]:
+    """The jobs ``multirun.yaml`` says the basic sweeper launched (their override lists) and the swept keys.
+    (None, keys) when it cannot tell (another sweeper, a glob over a config group, ...)."""
+    import yaml
+    try:
+        cfg = yaml.safe_load((sweep_root / "multirun.yaml").read_text()) or {}
+        hydra_cfg = cfg.get("hydra") or {}
+        task = list((hydra_cfg.get("overrides") or {}).get("task") or [])
+        sweeper = hydra_cfg.get("sweeper") or {}
+        params = [f"{k}={v}" for k, v in (sweeper.get("params") or {}).items()]
+    except Exception:
+        return None, []
+    try:
+        parsed = _parser().parse_overrides(params + [str(t) for t in task])
+    except Exception:
+        return None, []
+    keys = [o.get_key_element() for o in parsed if o.is_sweep_override()]
+    if not str(sweeper.get("_target_", "")).endswith("BasicSweeper"):
+        return None, keys
+    try:
+        from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+        return BasicSweeper.split_arguments(parsed, None)[0], keys
+    except Exception:
+        return None, keys
+
+
+# ---------------------------------------------------------------------------------------------- failure reasons
+class _SubmititLogs:
+    """Finds a failed job's submitit error stream: the ``*_submitted.pkl`` holding all of the job's override
+    strings (matched exactly, as pickled strings) names the folder whose ``*_log.err`` tells what happened."""
+
+    def __init__(self, sweep_root: Path):
+        pkls = sorted((sweep_root / ".submitit").glob("*/*_submitted.pkl"))
+        self.folders = [(p.parent, p.read_bytes()) for p in pkls]
+
+    @staticmethod
+    def _pickled(s: str) -> bytes:
+        b = s.encode()
+        return (b"\x8c" + bytes([len(b)]) + b) if len(b) < 256 else (b"X" + len(b).to_bytes(4, "little") + b)
+
+    def reason(self, overrides: list[str]) -> str | None:
+        if not overrides or not self.folders:
+            return None
+        needles = [self._pickled(o) for o in overrides]
+        hits = [folder for folder, blob in self.folders if all(n in blob for n in needles)]
+        if len(hits) != 1:
+            return None
+        for err in sorted(hits[0].glob("*_log.err")):
+            lines = [ln.strip() for ln in err.read_text(errors="replace").splitlines() if ln.strip()]
+            if lines:
+                return f"{lines[-1][:300]} (from {err})"
+        return None
+
+
+def _last_log_line(job: Path) -> str | None:
+    log = job / "main.log"
+    try:
+        lines = [ln.strip() for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return None
+    return lines[-1][:300] if lines else None
+
+
+# ------------------------------------------------------------------------------------------------------ rows
+def _num(v: Any) -> float | None:
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+
+def _short_verdict(cert: dict | None) -> str | None:
+    if not cert:
+        return None
+    if cert.get("global_holds"):
+        return "global"
+    if cert.get("holds_on_samples"):
+        return "samples"
+    return "fails"
+
+
+def _row(job: Path, root: Path, overrides: list[str] | None, summary: dict | None, reason: str | None,
+         missing_status: str = "missing") -> dict:
+    ov = overrides or []
+    x0 = None
+    for o in ov:
+        k, v = _split_override(o)
+        if k.lstrip("+~") == X0_KEY:
+            x0 = _x0_from_override(v)
+    row: dict[str, Any] = {
+        "job": "." if job == root else job.relative_to(root).as_posix(), "path": str(job),
+        "override_list": ov, "overrides": "", "system": None, "controller": None, "x0": x0,
+        "status": None, "ok": False, "success": None, "final_error": None, "cost": None, "settling_time_s": None,
+        "max_abs_u": None, "fallbacks": None, "solve_median_ms": None, "solve_p99_ms": None, "certificate": None,
+        "certificate_verdict": None, "clf_status": None, "wall_time_s": None, "reason": reason or "",
+    }
+    if summary is None:
+        row["status"] = missing_status
+        return row
+    m = summary.get("metrics") or {}
+    clf = summary.get("clf") or {}
+    cert = clf.get("certificate") or {}
+    status = summary.get("status")
+    completed = bool(summary.get("completed")) and status == "completed"
+    settle = _num(m.get("settling_time"))
+    if settle is None and "settling_time" in m and summary.get("completed"):
+        settle = math.inf  # summary.json writes inf (never settled within tol) as null
+    row.update({
+        "system": summary.get("system"), "controller": summary.get("controller"),
+        "x0": summary.get("x0") if isinstance(summary.get("x0"), list) else x0,
+        "status": status,
+        "ok": completed,
+        "success": bool(m["success"]) if isinstance(m.get("success"), bool) else None,
+        "final_error": _num(m.get("final_error")), "cost": _num(m.get("cost")), "settling_time_s": settle,
+        "max_abs_u": _num(m.get("max_abs_u")), "fallbacks": m.get("fallbacks"),
+        "solve_median_ms": None if _num(m.get("solve_time_median")) is None else m["solve_time_median"] * 1e3,
+        "solve_p99_ms": None if _num(m.get("solve_time_p99")) is None else m["solve_time_p99"] * 1e3,
+        "certificate": _short_verdict(cert), "certificate_verdict": cert.get("verdict"),
+        "clf_status": clf.get("status"), "wall_time_s": _num(summary.get("wall_time_s")),
+    })
+    if not completed:
+        if status == "error":  # rejected or failed with a one-line reason (kexp writes it into summary.json)
+            row["reason"] = f"error: {summary.get('message', '')}"
+        elif not summary.get("completed"):
+            row["reason"] = (f"interrupted: summary.json says status {status!r}, completed false "
+                             "(the job crashed or was killed during the run)")
+            row["status"] = "interrupted"
+        else:
+            row["reason"] = f"status {status!r}" + (f": {summary['message']}" if summary.get("message") else "")
+    return row
+
+
+def _job_folders(root: Path) -> list[Path]:
+    found = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+        here = Path(dirpath)
+        if "summary.json" in filenames or (here / ".hydra" / "overrides.yaml").is_file():
+            found.append(here)
+    return found
+
+
+def _sort_key(job: str):
+    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in job.split("/")]
+
+
+def aggregate(sweep_dir: str | Path) -> list[dict]:
+    """One row (a dict) per job under ``sweep_dir``: the CSV columns (``x0`` a list, times in ms / s, ``success``
+    a bool or None) plus ``ok`` (completed without divergence), ``override_list`` (the job's overrides) and
+    ``reason`` (why the job failed, '' when it did not).  Raises :class:`ReportError` if the folder does not exist
+    or holds no job."""
+    root = Path(sweep_dir)
+    if not root.is_dir():
+        raise ReportError(f"{sweep_dir}: no such folder")
+    root = root.resolve()
+    rows: list[dict] = []
+    submitit: dict[Path, _SubmititLogs] = {}
+    for job in _job_folders(root):
+        overrides = _read_overrides(job)
+        summary, reason, missing = None, None, "missing"
+        spath = job / "summary.json"
+        if spath.is_file():
+            try:
+                summary = json.loads(spath.read_text())
+                if not isinstance(summary, dict):
+                    raise ValueError("not a JSON object")
+            except (OSError, ValueError) as exc:
+                summary, reason = None, f"summary.json unreadable: {exc}"
+                missing = "unreadable"
+        else:
+            reason = "no summary.json (the job crashed or was killed before its run started)"
+            sweep_root = next((p for p in [job, *job.parents] if (p / ".submitit").is_dir()), None)
+            hint = None
+            if sweep_root is not None:
+                logs = submitit.setdefault(sweep_root, _SubmititLogs(sweep_root))
+                hint = logs.reason(overrides or [])
+            hint = hint or _last_log_line(job)
+            if hint:
+                reason += f"; last error line: {hint}"
+        rows.append(_row(job, root, overrides, summary, reason, missing))
+    # jobs the basic sweeper planned but that never got a folder (the sweep stopped before them)
+    swept: list[str] = []
+    for mr in sorted(root.rglob("multirun.yaml")):
+        sroot = mr.parent
+        planned, keys = _planned_jobs(sroot)
+        swept += [k for k in keys if k not in swept]
+        mine = [r for r in rows if Path(r["path"]) == sroot or sroot in Path(r["path"]).parents]
+        if planned is None or any(not r["override_list"] for r in mine):
+            continue  # cannot match jobs to the plan (e.g. hydra.output_subdir=null)
+        have = {tuple(sorted(r["override_list"])) for r in mine}
+        for i, ov in enumerate(planned):
+            if tuple(sorted(ov)) not in have:
+                rows.append(_row(sroot, root, list(ov), None,
+                                 "not started: no job folder (the sweep stopped before this job)", "not started"))
+                rows[-1]["job"] = f"(not started #{i})" if sroot == root else \
+                    f"{sroot.relative_to(root).as_posix()}/(not started #{i})"
+                rows[-1]["path"] = ""
+    if not rows:
+        raise ReportError(f"{sweep_dir}: holds no runs (no summary.json nor .hydra/overrides.yaml below it)")
+    _label(rows, swept)
+    rows.sort(key=lambda r: _sort_key(r["job"]))
+    return rows
+
+
+def _label(rows: list[dict], swept: list[str]) -> None:
+    """``overrides``: the job's values of the keys that vary across the jobs (or were swept)."""
+    per_job = [dict(_split_override(o) for o in r["override_list"]) for r in rows]
+    keys: list[str] = []
+    for d in per_job:
+        keys += [k for k in d if k not in keys]
+    varying = [k for k in keys if k in swept or len({d.get(k) for d in per_job}) > 1]
+    for r, d in zip(rows, per_job):
+        r["overrides"] = " ".join(f"{k}={d[k]}" for k in varying if k in d)
+        r["group"] = " ".join(f"{k}={d[k]}" for k in varying if k in d and k.lstrip("+~") != X0_KEY) or "(all)"
+        r["_group_key"] = tuple(sorted((k, v) for k, v in d.items() if k.lstrip("+~") != X0_KEY))
+
+
+# --------------------------------------------------------------------------------------------------- summary
+def _median(xs: Iterable[float | None]) -> float | None:
+    v = [x for x in xs if x is not None and not math.isnan(x)]
+    return statistics.median(v) if v else None
+
+
+def _max(xs: Iterable[float | None]) -> float | None:
+    v = [x for x in xs if x is not None and not math.isnan(x)]
+    return max(v) if v else None
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    """Per group of identical overrides apart from ``sim.x0``: runs, completed, failed, successes (a failed job
+    counts as no success), median / worst cost and median solve time over the runs that have them."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(r.get("_group_key", ()), []).append(r)
+    out = []
+    for members in groups.values():
+        n = len(members)
+        ok = sum(r["ok"] for r in members)
+        succ = sum(bool(r["success"]) for r in members)
+        out.append({
+            "group": members[0].get("group", "(all)"), "runs": n, "completed": ok, "failed": n - ok,
+            "successes": succ, "success_rate": succ / n,
+            "cost_median": _median(r["cost"] for r in members), "cost_worst": _max(r["cost"] for r in members),
+            "solve_median_ms": _median(r["solve_median_ms"] for r in members),
+            "solve_p99_worst_ms": _max(r["solve_p99_ms"] for r in members),
+        })
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------ output
+def _csv_value(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return "inf" if math.isinf(v) else repr(v)
+    if isinstance(v, (list, tuple)):
+        return json.dumps(v)
+    return str(v)
+
+
+def write_csv(rows: list[dict], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(CSV_COLUMNS)
+        for r in rows:
+            w.writerow([_csv_value(" ".join(r["override_list"]) if c == "all_overrides" else r.get(c))
+                        for c in CSV_COLUMNS])
+
+
+def write_summary_csv(groups: list[dict], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(SUMMARY_COLUMNS)
+        for g in groups:
+            w.writerow([_csv_value(g[c]) for c in SUMMARY_COLUMNS])
+
+
+def _fmt(v: Any, spec: str = ".4g") -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return "never" if math.isinf(v) else format(v, spec)
+    if isinstance(v, list):
+        return "[" + ", ".join(format(x, "g") if isinstance(x, (int, float)) else str(x) for x in v) + "]"
+    return str(v)
+
+
+def _md_cell(s: str) -> str:
+    return s.replace("|", "\\|").replace("\n", " ")
+
+
+def rate(successes: int, n: int) -> str:
+    return f"{successes}/{n} ({100.0 * successes / n:.0f} %)" if n else "0/0"
+
+
+def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: Path,
+                   pictures: dict[str, str] | None, picture_note: str | None) -> None:
+    n = len(rows)
+    ok = sum(r["ok"] for r in rows)
+    succ = sum(bool(r["success"]) for r in rows)
+    failed = [r for r in rows if not r["ok"]]
+    lines = [f"# kexp sweep report: {sweep_dir}", "",
+             f"**{n} runs**: {ok} completed, {len(failed)} failed; success {rate(succ, n)} "
+             "(a failed run counts as no success).", "",
+             "## Summary (per group of identical overrides apart from `sim.x0`)", "",
+             "| group | runs | failed | success | median cost | worst cost | median solve [ms] | worst p99 [ms] |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for g in groups:
+        lines.append(f"| {_md_cell(g['group'])} | {g['runs']} | {g['failed']} | {rate(g['successes'], g['runs'])} "
+                     f"| {_fmt(g['cost_median'])} | {_fmt(g['cost_worst'])} | {_fmt(g['solve_median_ms'], '.3f')} "
+                     f"| {_fmt(g['solve_p99_worst_ms'], '.3f')} |")
+    lines += ["", f"## Failed runs ({len(failed)})", ""]
+    if failed:
+        lines += [f"- `{_md_cell(r['job'])}` {_md_cell(r['overrides'])}: {_md_cell(r['reason'])}" for r in failed]
+    else:
+        lines.append("none")
+    lines += ["", "## Runs", "",
+              "| job | overrides | system | controller | x0 | status | success | cost | settling [s] | max abs u "
+              "| fallbacks | solve median [ms] | solve p99 [ms] | certificate |",
+              "|---|---|---|---|---|---|---|---:|---:|---:|---:|---:|---:|---|"]
+    for r in rows:
+        lines.append("| " + " | ".join(_md_cell(x) for x in [
+            r["job"], r["overrides"] or "–", _fmt(r["system"]), _fmt(r["controller"]), _fmt(r["x0"]),
+            _fmt(r["status"]), _fmt(r["success"]), _fmt(r["cost"]), _fmt(r["settling_time_s"], ".3g"),
+            _fmt(r["max_abs_u"]), _fmt(r["fallbacks"]), _fmt(r["solve_median_ms"], ".3f"),
+            _fmt(r["solve_p99_ms"], ".3f"), _fmt(r["certificate"])]) + " |")
+    lines += ["", "certificate: `global` = Proposition 1 holds globally, `samples` = h decreases V at every sampled "
+              "state of the region only, `fails` = neither (full verdicts in report.csv).", "", "## Pictures", ""]
+    if pictures:
+        titles = {"roa": "Success over the initial conditions (estimate of the region of attraction)",
+                  "cost": "Cost distribution", "solve_time": "Solve-time distribution"}
+        for key, name in pictures.items():
+            lines += [f"![{titles[key]}]({name})", ""]
+    if picture_note:
+        lines += [picture_note, ""]
+    path.write_text("\n".join(lines).rstrip() + "\n")
+
+
+def write_pictures(rows: list[dict], groups: list[dict], out_dir: Path) -> dict[str, str]:
+    """roa.png, cost_hist.png, solve_time_hist.png; raises ImportError when matplotlib is missing."""
+    from matplotlib.figure import Figure  # no pyplot: no global state, no GUI backend
+
+    written: dict[str, str] = {}
+    labels = [g["group"] for g in groups]
+    by_group = {lab: [r for r in rows if r.get("group", "(all)") == lab] for lab in labels}
+    with_x0 = [lab for lab in labels if any(r["x0"] for r in by_group[lab])]
+    if with_x0:
+        shown = with_x0[:12]
+        ncols = min(len(shown), 3)
+        nrows = math.ceil(len(shown) / ncols)
+        fig = Figure(figsize=(4.2 * ncols, 4.0 * nrows), layout="constrained")
+        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+        kinds = [("success", dict(marker="o", color="tab:green")), ("no success", dict(marker="o", color="tab:red")),
+                 ("diverged", dict(marker="x", color="tab:red")), ("failed job", dict(marker="x", color="0.5"))]
+        for ax, lab in zip(axes, shown):
+            for name, style in kinds:
+                pts = []
+                for r in by_group[lab]:
+                    if not r["x0"]:
+                        continue
+                    kind = ("success" if r["success"] else "no success") if r["ok"] else \
+                        ("diverged" if r["status"] == "diverged" else "failed job")
+                    if kind == name:
+                        pts.append((r["x0"][0], r["x0"][1] if len(r["x0"]) > 1 else 0.0))
+                if pts:
+                    ax.scatter(*zip(*pts), label=name, s=36, **style)
+            ax.set_title(lab if len(lab) < 60 else lab[:57] + "...", fontsize=9)
+            ax.set_xlabel("x0[0]")
+            ax.set_ylabel("x0[1]")
+            ax.grid(True, alpha=0.3)
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.legend(fontsize=8)
+        for ax in axes[len(shown):]:
+            ax.set_visible(False)
+        fig.suptitle("success over the initial conditions" +
+                     (f" (first {len(shown)} of {len(with_x0)} groups)" if len(with_x0) > len(shown) else ""))
+        fig.savefig(out_dir / PICTURES["roa"], dpi=100)
+        written["roa"] = PICTURES["roa"]
+
+    def hist(ax, key, title, xlabel):
+        import numpy as np
+        values = {lab: [r[key] for r in by_group[lab] if r[key] is not None and math.isfinite(r[key])]
+                  for lab in labels[:8]}
+        every = [v for vs in values.values() for v in vs]
+        if not every:
+            return False
+        bins = np.histogram_bin_edges(every, bins=min(30, max(5, len(every) // 2)))
+        drawn = False
+        for lab, v in values.items():
+            if v:
+                ax.hist(v, bins=bins, alpha=0.6 if len(labels) > 1 else 0.9, label=lab[:40])
+                drawn = True
+        ax.set_title(title)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("runs")
+        from matplotlib.ticker import MaxNLocator
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        if drawn and len(labels) > 1:
+            ax.legend(fontsize=7)
+        return drawn
+
+    fig = Figure(figsize=(6, 4), layout="constrained")
+    if hist(fig.subplots(), "cost", "cost J per run", "J"):
+        fig.savefig(out_dir / PICTURES["cost"], dpi=100)
+        written["cost"] = PICTURES["cost"]
+    fig = Figure(figsize=(10, 4), layout="constrained")
+    a, b = fig.subplots(1, 2)
+    if hist(a, "solve_median_ms", "median solve time per run", "ms") | hist(b, "solve_p99_ms", "p99 solve time per run",
+                                                                             "ms"):
+        fig.savefig(out_dir / PICTURES["solve_time"], dpi=100)
+        written["solve_time"] = PICTURES["solve_time"]
+    return written
+
+
+def report(sweep_dir: str | Path, out_dir: str | Path | None = None, *, pictures: bool = True) -> dict:
+    """aggregate + write report.csv, report_summary.csv, report.md and the pictures into ``out_dir`` (default:
+    the sweep folder).  Returns {'rows', 'groups', 'files', 'picture_note'}."""
+    rows = aggregate(sweep_dir)
+    groups = summarize(rows)
+    out = Path(out_dir) if out_dir is not None else Path(sweep_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [out / CSV_NAME, out / SUMMARY_CSV_NAME, out / MD_NAME]
+    write_csv(rows, files[0])
+    write_summary_csv(groups, files[1])
+    written, note = {}, None
+    if pictures:
+        try:
+            written = write_pictures(rows, groups, out)
+        except ImportError:
+            note = NO_MATPLOTLIB
+    write_markdown(rows, groups, files[2], Path(sweep_dir).resolve(), written, note)
+    files += [out / name for name in written.values()]
+    return {"rows": rows, "groups": groups, "files": files, "picture_note": note}
+
+
+def _main(argv) -> int:
+    p = argparse.ArgumentParser(prog="kexp-report", description="Tabulate a sweep of kexp runs (kexp --multirun): "
+                                "report.csv, report_summary.csv, report.md and PNG pictures (with matplotlib).")
+    p.add_argument("sweep_dir", help="the sweep folder (e.g. multirun/<date>/<time>), searched recursively")
+    p.add_argument("-o", "--out", dest="out_dir", default=None, help="output folder (default: the sweep folder)")
+    p.add_argument("--no-pictures", action="store_true", help="skip the PNG pictures")
+    args = p.parse_args(argv)
+    try:
+        res = report(args.sweep_dir, args.out_dir, pictures=not args.no_pictures)
+    except ReportError as exc:
+        print(f"kexp-report: error: {exc}", file=sys.stderr)
+        return 2
+    rows = res["rows"]
+    n, ok = len(rows), sum(r["ok"] for r in rows)
+    print(f"kexp-report: {n} runs, {ok} completed, {n - ok} failed; success "
+          f"{rate(sum(bool(r['success']) for r in rows), n)}")
+    for r in [r for r in rows if not r["ok"]][:20]:
+        print(f"  failed: {r['job']} {r['overrides']}: {r['reason']}")
+    if n - ok > 20:
+        print(f"  ... and {n - ok - 20} more (see report.md)")
+    if res["picture_note"]:
+        print(f"kexp-report: {res['picture_note']}", file=sys.stderr)
+    print("wrote " + ", ".join(str(f) for f in res["files"]))
+    return 0
+
+
+def main(argv=None) -> None:
+    sys.exit(_main(argv))
+
+
+if __name__ == "__main__":
+    main()
