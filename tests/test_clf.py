@@ -102,3 +102,21 @@ def test_bad_clf_settings():
         ClfConfig(gamma=-1.0)
     with pytest.raises(ConfigError, match="solver"):
         ClfConfig(solver="MOSEK")
+
+
+def test_lqr_x_clf_recovers_the_riccati_solution_of_a_linear_system():
+    """clf.method=lqr_x uses the model's own linearisation CΛJ, Cb; on a linear system identified with
+    degree-1 monomials these are A and B exactly, so V = xᵀP_x x with P_x the true Riccati solution."""
+    import scipy.linalg as sla
+
+    from kexp.systems import Linear
+    A = np.array([[0.0, 1.0], [2.0, -0.5]])   # unstable
+    s = Linear(A=tuple(map(tuple, A)))
+    model = identify(s, collect(s, Circle(10, 1.0), DataConfig(T=1.0)), Monomials(2, 1, include_constant=False))
+    clf = synthesize_clf(model, ClfConfig(method="lqr_x", q_x=2.0, r_u=0.5))
+    Px = sla.solve_continuous_are(A, np.array([[0.0], [1.0]]), 2.0 * np.eye(2), 0.5 * np.eye(1))
+    x = np.random.default_rng(0).normal(size=(20, 2))
+    z = model.lift(x)
+    reg = 1e-4 * np.linalg.eigvalsh(Px)[-1] * np.sum(z ** 2, axis=1)      # the ε·λ_max·I regulariser
+    assert np.allclose(clf.lyap.value(z) - reg, np.einsum("ij,jk,ik->i", x, Px, x), rtol=1e-8, atol=1e-10)
+    assert clf.status == "riccati"

@@ -193,3 +193,16 @@ def test_forced_data_and_too_little_data_rejected():
         identify(s, collect(s, Circle(3, 1.0), DataConfig(T=0.5, excitation=Excitation())), Monomials(2, 2))
     with pytest.raises(DataError, match="at least"):
         identify(s, collect(s, Circle(2, 1.0), DataConfig(T=0.05)), Monomials(2, 5))
+
+
+def test_dictionary_without_constant_still_gets_exact_b():
+    """Without a constant in φ, z(x_eq) = 0 and the input's constant part L_G x2 = 1 lies outside span(Ψ): kexp
+    projects L_GΨ on [Ψ, 1], so b carries it exactly (the design's pendulum recipe needs this)."""
+    s = SlowManifold(mu=-0.3, lam=-1.0, inputs="both")
+    model = identify(s, collect(s, Box(20, -1.0, 1.0), DataConfig(T=2.0)),
+                     Monomials(2, 2, weights=(1, 2), include_constant=False))
+    assert model.k == 3 and np.allclose(model.psi0, 0.0)
+    err_f, err_g = _lie_identities(s, model)
+    assert err_f < 1e-8 and err_g < 1e-8
+    assert np.linalg.norm(model.b) > 0.5
+    assert max(model.report["input_projection_residual"]) < 1e-10

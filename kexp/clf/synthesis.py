@@ -17,6 +17,7 @@ from .certificate import CertificateReport, check_certificate
 from .lyapunov import QuadraticLyapunov
 
 SOLVERS = ("CLARABEL", "SCS")
+METHODS = ("sdp", "lqr_x")
 
 
 class ClfError(KexpError, RuntimeError):
@@ -39,8 +40,16 @@ class ClfConfig:
     region_high: float | tuple[float, ...] = 1.0
     grid: int = 41
     rhat_floor: float = 0.05
+    method: str = "sdp"
+    q_x: float = 1.0
+    r_u: float = 1.0
+    eps: float = 1e-4
 
     def __post_init__(self):
+        if self.method not in METHODS:
+            raise ConfigError(f"clf.method={self.method!r}; valid: {METHODS}")
+        if not (self.q_x > 0 and self.r_u > 0 and self.eps > 0):
+            raise ConfigError(f"clf.q_x={self.q_x}, clf.r_u={self.r_u}, clf.eps={self.eps}: all must be > 0")
         if not (np.isfinite(self.gamma) and self.gamma >= 0):
             raise ConfigError(f"clf.gamma={self.gamma}: use a finite number >= 0")
         if not (0 < self.c_lower < self.c_upper < np.inf):
@@ -77,7 +86,8 @@ class Clf:
 
     def summary(self) -> str:
         eig = np.linalg.eigvalsh(self.P)
-        return "\n".join([f"CLF (SDP eq. 40, {self.solver}): status {self.status}, objective {self.objective:.4g}, "
+        how = f"SDP eq. 40, {self.solver}" if self.config.method == "sdp" else "Riccati of the model linearisation (lqr_x)"
+        return "\n".join([f"CLF ({how}): status {self.status}, objective {self.objective:.4g}, "
                           f"σ = {self.sigma:.4g}, eig(P) in [{eig[0]:.4g}, {eig[-1]:.4g}]"]
                          + self.certificate.lines())
 
@@ -112,10 +122,30 @@ def solve_sdp(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float]:
     return Pv, status, float(prob.value), float(sigma.value)
 
 
+def solve_lqr_x(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float]:
+    """V from the model's own linearisation at the equilibrium, in x: with z ≈ J(x − x_eq) (J = ∂z/∂x at x_eq)
+    and x − x_eq ≈ Cz, ẋ ≈ CΛJ·x + Cb·u.  P_x solves the Riccati equation of (CΛJ, Cbᵀ, q_x I, r_u I) and
+    V(z) = zᵀ(CᵀP_xC + ε·λ_max I)z ≈ xᵀP_x x near x_eq (ε keeps P positive definite on the directions C does not
+    see).  Uses only the identified model (F stays unknown)."""
+    import scipy.linalg as sla
+    J = model.lift_jacobian(model.x_eq[None])[0]          # (k, n)
+    A = model.C @ model.Lambda @ J
+    Bx = model.C @ model.b.T                               # (n, m)
+    try:
+        Px = sla.solve_continuous_are(A, Bx, config.q_x * np.eye(model.n), config.r_u * np.eye(model.m))
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ClfError(f"clf.method=lqr_x: the model's linearisation (A = CΛJ, B = Cb) is not stabilisable "
+                       f"({exc}); use clf.method=sdp or improve the data near the equilibrium") from None
+    Pz = model.C.T @ Px @ model.C
+    Pz = 0.5 * (Pz + Pz.T) + config.eps * np.linalg.eigvalsh(Px)[-1] * np.eye(model.k)
+    return Pz, "riccati", float(np.trace(Px)), float("nan")
+
+
 def synthesize_clf(model, config: ClfConfig = ClfConfig(), *, law: str = "sontag", u_min=-5.0, u_max=5.0,
                    law_params: dict | None = None) -> Clf:
-    """Solve the SDP, then check the certificate of V = zᵀPz for the explicit law ``law`` with bounds."""
-    P, status, obj, sigma = solve_sdp(model, config)
+    """Solve the SDP (or the Riccati equation, ``method='lqr_x'``), then check the certificate of V = zᵀPz for
+    the explicit law ``law`` with bounds."""
+    P, status, obj, sigma = (solve_sdp if config.method == "sdp" else solve_lqr_x)(model, config)
     return clf_from_P(model, P, config, law=law, u_min=u_min, u_max=u_max, law_params=law_params,
                       status=status, objective=obj, sigma=sigma)
 

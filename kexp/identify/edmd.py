@@ -87,6 +87,7 @@ class LeastSquaresFit:
     n_pairs: int
     method: str
     rcond: float
+    n_extra: int = 0   # 1: a column of ones follows Φ_X (the constant, for B and b when φ has none)
 
     @property
     def r11(self) -> np.ndarray:
@@ -94,15 +95,24 @@ class LeastSquaresFit:
         return self.R[: self.N, : self.N]
 
     def _block(self, j: int) -> slice:
-        return slice((1 + j) * self.N, (2 + j) * self.N)
+        start = (1 + j) * self.N + self.n_extra
+        return slice(start, start + self.N)
 
-    def inside(self, j: int) -> np.ndarray:
-        """(N, N): target block j (0: Φ_Y, 1+i: Lφ_i) in span(Φ_X), as R coordinates (Q₁ᵀ·target)."""
-        return self.R[: self.N, self._block(j)]
+    @property
+    def r_ext(self) -> np.ndarray:
+        """(N + e, N + e): the factor of [Φ_X | 1] (e = n_extra; equal to r11 when e = 0)."""
+        e = self.N + self.n_extra
+        return self.R[:e, :e]
 
-    def outside(self, j: int) -> np.ndarray:
-        """(W − N, N): the part of target block j orthogonal to span(Φ_X)."""
-        return self.R[self.N:, self._block(j)]
+    def inside(self, j: int, extended: bool = False) -> np.ndarray:
+        """Target block j (0: Φ_Y, 1+i: Lφ_i) in span(Φ_X) (or span[Φ_X, 1] if ``extended``), as R coordinates."""
+        rows = self.N + (self.n_extra if extended else 0)
+        return self.R[:rows, self._block(j)]
+
+    def outside(self, j: int, extended: bool = False) -> np.ndarray:
+        """The part of target block j orthogonal to span(Φ_X) (or span[Φ_X, 1])."""
+        rows = self.N + (self.n_extra if extended else 0)
+        return self.R[rows:, self._block(j)]
 
     def singular_values(self) -> np.ndarray:
         return sla.svdvals(self.r11)
@@ -133,16 +143,18 @@ class LeastSquaresFit:
     def relative_residual(self, j: int, T: np.ndarray | None = None) -> float:
         """‖part of target block j (times T) outside span(Φ_X)‖ / ‖target block j (times T)‖."""
         T = np.eye(self.N) if T is None else T
-        out = np.linalg.norm(self.outside(j) @ T)
-        tot = np.hypot(np.linalg.norm(self.inside(j) @ T), out)
+        out = np.linalg.norm(self.outside(j, extended=j > 0) @ T)
+        tot = np.hypot(np.linalg.norm(self.inside(j, extended=j > 0) @ T), out)
         return float(out / tot) if tot > 0 else 0.0
 
 
 def fit_least_squares(chunks: Iterable[tuple[np.ndarray, np.ndarray]], lift: Callable[[np.ndarray], np.ndarray],
                       *, lie_inputs: Callable[[np.ndarray], np.ndarray] | None = None, m: int = 0,
-                      method: str = "qr", rcond: float = 1e-13) -> LeastSquaresFit:
+                      method: str = "qr", rcond: float = 1e-13, add_constant: bool = False) -> LeastSquaresFit:
     """One streamed pass over (X, Y) chunks (rows, n).  ``lift(X)`` -> (rows, N); ``lie_inputs(X)`` ->
-    (rows, N, m), the dictionary's Lie derivatives along the m input fields (omit for K only)."""
+    (rows, N, m), the dictionary's Lie derivatives along the m input fields (omit for K only).
+    ``add_constant``: put a column of ones after Φ_X, so the input terms can be projected on [Ψ, 1] when the
+    dictionary has no constant (it does not change K: QR is sequential in the columns)."""
     if method not in METHODS:
         raise ConfigError(f"identification.method={method!r}; valid: {METHODS}")
     if not 0 < rcond < 1:
@@ -158,18 +170,21 @@ def fit_least_squares(chunks: Iterable[tuple[np.ndarray, np.ndarray]], lift: Cal
             raise DataError("snapshot pairs contain NaN/inf; filter the data (data.filter) or fix the system")
         px = lift(X)
         rows, N = X.shape[0], px.shape[1]
+        e = 1 if add_constant else 0
         if acc is None:
-            width = N * (2 + m)
+            width = N * (2 + m) + e
             acc = _StreamedQR(width) if method == "qr" else _StreamedGram(width)
         buf = acc.buffer(rows)
         top = acc.width if method == "qr" else 0
         buf[top:, :N] = px
         del px
-        buf[top:, N:2 * N] = lift(Y)
+        if e:
+            buf[top:, N] = 1.0
+        buf[top:, N + e:2 * N + e] = lift(Y)
         if m:
             lg = lie_inputs(X)
             for i in range(m):
-                buf[top:, (2 + i) * N:(3 + i) * N] = lg[:, :, i]
+                buf[top:, (2 + i) * N + e:(3 + i) * N + e] = lg[:, :, i]
             del lg
         acc.factor_buffer()
         n_pairs += rows
@@ -178,4 +193,5 @@ def fit_least_squares(chunks: Iterable[tuple[np.ndarray, np.ndarray]], lift: Cal
     if n_pairs < N:
         raise DataError(f"{n_pairs} snapshot pairs for a dictionary of {N} functions: need at least {N} "
                         "(more trajectories, a longer duration, or a lower degree)")
-    return LeastSquaresFit(R=acc.factor(), N=N, m=m, n_pairs=n_pairs, method=method, rcond=rcond)
+    return LeastSquaresFit(R=acc.factor(), N=N, m=m, n_pairs=n_pairs, method=method, rcond=rcond,
+                           n_extra=1 if add_constant else 0)

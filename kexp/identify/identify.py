@@ -102,7 +102,8 @@ def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomial
     quality_data = test if test is not None else train
     lie = lambda X: dictionary.lie(X, system.input_matrix(X))  # noqa: E731
     fit = fit_least_squares(train.iter_pairs(config.chunk_size), dictionary.lift, lie_inputs=lie, m=system.m,
-                            method=config.method, rcond=config.rcond)
+                            method=config.method, rcond=config.rcond,
+                            add_constant=dictionary.constant_index is None)
     if fit.n_pairs < 2 * dictionary.size:
         raise DataError(f"{fit.n_pairs} training pairs for {dictionary.size} dictionary functions: collect at least "
                         f"{2 * dictionary.size} (more trajectories or a longer duration) or lower the degree")

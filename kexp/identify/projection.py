@@ -19,16 +19,21 @@ def input_matrices(fit: LeastSquaresFit, T: np.ndarray, keep: np.ndarray, consta
     keep = np.asarray(keep)
     proj = keep if constant < 0 else np.append(keep, constant)
     ts, tp = T[:, keep], T[:, proj]
-    lhs = fit.r11 @ tp
+    e = fit.n_extra  # the dictionary has no constant: project on [Ψ_S, 1] with the fit's column of ones
+    tpe = np.zeros((T.shape[0] + e, proj.size + e))
+    tpe[: T.shape[0], : proj.size] = tp
+    if e:
+        tpe[-1, -1] = 1.0
+    lhs = fit.r_ext @ tpe
     Bs, bs, res = [], [], []
     for i in range(fit.m):
-        target_in = fit.inside(1 + i) @ ts
-        coef = fit.solve(lhs, target_in)  # (|S'|, |S|) = B'ᵀ
-        bprime = coef.T
+        target_in = fit.inside(1 + i, extended=True) @ ts
+        coef = fit.solve(lhs, target_in)  # (|S'| + e, |S|) = [B'ᵀ; cᵀ]
+        bprime = coef[: proj.size].T
         Bs.append(bprime[:, : keep.size])
-        bs.append(bprime @ psi0[proj])
+        bs.append(bprime @ psi0[proj] + (coef[-1] if e else 0.0))
         miss_in = np.linalg.norm(target_in - lhs @ coef)
-        miss_out = np.linalg.norm(fit.outside(1 + i) @ ts)
+        miss_out = np.linalg.norm(fit.outside(1 + i, extended=True) @ ts)
         total = np.hypot(np.linalg.norm(target_in), miss_out)
         res.append(np.hypot(miss_in, miss_out) / total if total > 0 else 0.0)
     k = keep.size
