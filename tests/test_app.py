@@ -13,7 +13,7 @@ from kexp.identify import KoopmanBilinearModel
 
 GROUPS = {"system": ["vanderpol", "pendulum", "duffing", "linear", "slow_manifold"], "data": ["circle", "box"],
           "dictionary": ["monomials5"], "identification": ["edmd"], "clf": ["sdp"],
-          "controller": ["lmpc", "sontag", "lie_gain", "lqr"], "sim": ["default"]}
+          "controller": ["lmpc", "sontag", "lie_gain", "lqr", "nmpc"], "sim": ["default"]}
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11"]
 
@@ -34,7 +34,7 @@ def test_every_config_option_composes_and_builds(group, option):
     build_dictionary(cfg.dictionary, system.n)
     build_clf(cfg.clf)
     build_sim(cfg.sim, system, 0.01)
-    assert cfg.controller.kind in ("lmpc", "explicit", "lqr")
+    assert cfg.controller.kind in ("lmpc", "explicit", "lqr", "nmpc")
 
 
 def test_default_job_end_to_end_small(tmp_path):

@@ -123,7 +123,7 @@ def build_clf(cfg: Mapping[str, Any]):
     return construct(ClfConfig, cfg, "clf")
 
 
-CONTROLLER_KINDS = ("lmpc", "explicit", "lqr")
+CONTROLLER_KINDS = ("lmpc", "explicit", "lqr", "nmpc")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,6 +138,7 @@ class ControllerSpec:
     lmpc: object = None        # LmpcConfig for kind 'lmpc'
     q: float = 1.0
     r: float = 1.0
+    horizon: int = 100         # nmpc: prediction horizon in steps
 
 
 def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
@@ -147,7 +148,7 @@ def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
     if kind not in CONTROLLER_KINDS:
         raise ConfigError(f"controller.kind={kind!r}; valid: {CONTROLLER_KINDS}")
     allowed = {"law", "law_params", "u_min", "u_max"} | ({"lmpc"} if kind == "lmpc" else set()) \
-        | ({"q", "r"} if kind == "lqr" else set())
+        | ({"q", "r"} if kind in ("lqr", "nmpc") else set()) | ({"horizon"} if kind == "nmpc" else set())
     for key in cfg:
         if key not in allowed:
             raise ConfigError(f"controller.{key}: unknown key for kind {kind!r}; valid keys: {sorted(allowed)}")
@@ -163,8 +164,11 @@ def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
         raise ConfigError(f"controller.q={q}, controller.r={r}: both must be > 0")
     lmpc = construct(LmpcConfig, cfg.get("lmpc"), "controller.lmpc") if kind == "lmpc" else None
     to_t = lambda v: tuple(v) if isinstance(v, list) else v  # noqa: E731
+    horizon = cfg.get("horizon", 100)
+    if not (isinstance(horizon, int) and not isinstance(horizon, bool) and horizon >= 1):
+        raise ConfigError(f"controller.horizon={horizon!r}: use an int >= 1")
     return ControllerSpec(kind=kind, law=law, law_params=dict(cfg.get("law_params") or {}), u_min=to_t(u_min),
-                          u_max=to_t(u_max), lmpc=lmpc, q=q, r=r)
+                          u_max=to_t(u_max), lmpc=lmpc, q=q, r=r, horizon=horizon)
 
 
 def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_every: int = 0):
@@ -176,6 +180,10 @@ def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_eve
         return Lmpc(model, clf, law, spec.lmpc, spec.u_min, spec.u_max, prediction_every=prediction_every)
     if spec.kind == "explicit":
         return ExplicitController(law, clf)
+    if spec.kind == "nmpc":
+        from ..control.oracle import NmpcOracle
+        return NmpcOracle(system, None, spec.u_min, spec.u_max, horizon_steps=spec.horizon, dt=model.dt, q=spec.q,
+                          r=spec.r, terminal="lqr", clf=clf, law=law)
     return LqrController(system, spec.u_min, spec.u_max, q=spec.q, r=spec.r, clf=clf)
 
 
