@@ -147,7 +147,9 @@ def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
     kind = cfg.pop("kind", None)
     if kind not in CONTROLLER_KINDS:
         raise ConfigError(f"controller.kind={kind!r}; valid: {CONTROLLER_KINDS}")
-    allowed = {"law", "law_params", "u_min", "u_max"} | ({"lmpc"} if kind == "lmpc" else set()) \
+    # 'lmpc' is accepted for every kind (used by kind lmpc only), so that `+experiment=X controller=lqr` works
+    # on a preset that tunes the LMPC
+    allowed = {"law", "law_params", "u_min", "u_max", "lmpc"} \
         | ({"q", "r"} if kind in ("lqr", "nmpc") else set()) | ({"horizon"} if kind == "nmpc" else set())
     for key in cfg:
         if key not in allowed:
@@ -187,12 +189,27 @@ def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_eve
     return LqrController(system, spec.u_min, spec.u_max, q=spec.q, r=spec.r, clf=clf)
 
 
-def build_sim(cfg: Mapping[str, Any], system, dt: float):
-    """Returns (SimConfig, x0 (n,), open_loop flag)."""
+def check_data_budget(sampler, data_cfg, ident_cfg, dictionary_size: int) -> None:
+    """Too few samples for the dictionary: refuse before collecting anything."""
+    n_train = sampler.n_traj - max(1 if ident_cfg.holdout > 0 and sampler.n_traj >= 2 else 0,
+                                   int(round(ident_cfg.holdout * sampler.n_traj)))
+    pairs = n_train * data_cfg.n_steps
+    if pairs < 2 * dictionary_size:
+        raise ConfigError(f"data gives about {pairs} training pairs ({n_train} trajectories × {data_cfg.n_steps} "
+                          f"steps) for {dictionary_size} dictionary functions: need at least {2 * dictionary_size}; "
+                          "raise data.sampler.n_traj or data.T, or lower dictionary.degree")
+
+
+def build_sim(cfg: Mapping[str, Any], system, dt: float, sampler=None):
+    """Returns (SimConfig, x0 (n,), open_loop flag).  With ``sampler``, refuses an x0 outside the region the data
+    starts from (the model is not fit there) unless ``sim.allow_outside_data``."""
     from ..simulate import SimConfig
     cfg = dict(_plain(cfg))
     x0 = cfg.pop("x0", None)
     open_loop = bool(cfg.pop("open_loop", True))
+    allow_outside = cfg.pop("allow_outside_data", False)
+    if not isinstance(allow_outside, bool):
+        raise ConfigError(f"sim.allow_outside_data={allow_outside!r}: expected true or false")
     raw = x0
     try:
         x0 = np.asarray(x0, dtype=float) if x0 is not None else None
@@ -201,6 +218,10 @@ def build_sim(cfg: Mapping[str, Any], system, dt: float):
                           "(without quotes around the list)") from None
     if x0 is None or x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
         raise ConfigError(f"sim.x0={None if x0 is None else x0.tolist()}: give {system.n} finite numbers")
+    xe = np.asarray(system.equilibrium, float)
+    if sampler is not None and not allow_outside and hasattr(sampler, "contains") and not sampler.contains(x0, xe):
+        raise ConfigError(f"sim.x0={x0.tolist()} lies outside the data region ({sampler.describe()}): the model is "
+                          "not fit there; move x0, widen the data, or set sim.allow_outside_data=true")
     return construct(SimConfig, cfg, "sim", dt=dt), x0, open_loop
 
 

@@ -23,7 +23,7 @@ from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
-                    build_identification, build_logging, build_sim, build_system)
+                    build_identification, build_logging, build_sim, build_system, check_data_budget)
 from .cache import Cache, key_of
 from .progress import Progress
 
@@ -67,13 +67,13 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     sampler, data_cfg = build_data(cfg["data"])
     ident_cfg = build_identification(cfg["identification"])
     clf_cfg = build_clf(cfg["clf"])
-    sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt)
+    sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt, sampler)
     log_cfg = build_logging(cfg.get("logging") or {})
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
     cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))
     if cfg["dictionary"].get("scale") != "auto":
-        build_dictionary(cfg["dictionary"], system.n, None)
+        check_data_budget(sampler, data_cfg, ident_cfg, build_dictionary(cfg["dictionary"], system.n, None).size)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
 
@@ -188,7 +188,28 @@ def _hydra_main(cfg: DictConfig) -> None:
             sys.exit(2)  # a single run: exit code 2; in a sweep the other jobs go on, the report counts this one
 
 
+def _precheck(argv: list[str]) -> None:
+    """For a single run: compose the config first, so an unknown group option, preset or key, or a bad override,
+    is one line and exit code 2 (Hydra itself prints several lines and exits 1)."""
+    if any(a.startswith("-") for a in argv):  # --multirun, --cfg, --help, ...: leave it to Hydra
+        return
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+    try:
+        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+            compose(config_name="config", overrides=argv)
+    except (HydraException, OmegaConfBaseException, ValueError) as exc:
+        lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+        msg = " ".join(line for line in lines if not line.startswith(("See https", "Set the environment")))
+        msg = msg.split(" Config search path:")[0]
+        msg = (msg[:400] + " …") if len(msg) > 400 else (msg or type(exc).__name__)
+        print(f"kexp: error: {msg}", file=sys.stderr)
+        sys.exit(2)
+
+
 def main() -> None:
+    _precheck(sys.argv[1:])
     _hydra_main()
 
 

@@ -35,6 +35,12 @@ class Circle:
             d /= np.linalg.norm(d, axis=1, keepdims=True)
         return center + self.radius * d
 
+    def contains(self, x: np.ndarray, center: np.ndarray) -> bool:
+        return bool(np.linalg.norm(np.asarray(x) - center) <= self.radius * (1 + 1e-12))
+
+    def describe(self) -> str:
+        return f"the circle/ball of radius {self.radius:g} around x_eq"
+
 
 @dataclass(frozen=True)
 class Box:
@@ -57,6 +63,15 @@ class Box:
         lo = np.broadcast_to(np.atleast_1d(self.low).astype(float), (n,))
         hi = np.broadcast_to(np.atleast_1d(self.high).astype(float), (n,))
         return np.random.default_rng(seed).uniform(lo, hi, (self.n_traj, n))
+
+    def contains(self, x: np.ndarray, center: np.ndarray) -> bool:
+        x = np.asarray(x)
+        lo = np.broadcast_to(np.asarray(self.low, dtype=float), x.shape)
+        hi = np.broadcast_to(np.asarray(self.high, dtype=float), x.shape)
+        return bool(np.all((x >= lo) & (x <= hi)))
+
+    def describe(self) -> str:
+        return f"the box [{self.low}, {self.high}]"
 
 
 @dataclass(frozen=True)
@@ -81,6 +96,13 @@ class Points:
         if p.shape[1] != center.size:
             raise ConfigError(f"data.sampler.points have {p.shape[1]} components; the system has n={center.size}")
         return p.copy()
+
+    def contains(self, x: np.ndarray, center: np.ndarray) -> bool:
+        p = np.asarray(self.points, dtype=float)
+        return bool(np.all((x >= p.min(axis=0)) & (x <= p.max(axis=0))))
+
+    def describe(self) -> str:
+        return "the bounding box of data.sampler.points"
 
 
 def _check_count(n_traj):
