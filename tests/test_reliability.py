@@ -1,0 +1,157 @@
+"""Bad input, faults, kills and determinism (issue: reliability)."""
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from kexp.app.main import CONF_DIR, _precheck, run
+from kexp.errors import KexpError
+from kexp.recording import diff_logs, read_log
+
+SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
+         "controller.lmpc.blocks=null", "sim.T=1.0", "clf.grid=11", "logging.rrd=false", "logging.progress=false"]
+
+# (override, fragment of the one-line message) — each names the key, the value and what is valid
+BAD = [
+    ("system.name=nope", "unknown system 'nope'; valid:"),
+    ("system.name=no_such_module:Cls", "cannot import module 'no_such_module'"),
+    ("controller.kind=mpc", "controller.kind='mpc'; valid:"),
+    ("controller.law=foo", "controller.law='foo'; valid:"),
+    ("data.dt=0", "data.dt=0: the sampling time must be > 0"),
+    ("data.dt=20", "data.T=3.0: the duration must be >= dt=20"),
+    ("data.pairs=forward", "data.pairs='forward'; valid:"),
+    ("data.sampler.kind=disc", "unknown sampler 'disc'; valid:"),
+    ("data.sampler.radius=-1", "data.sampler.radius=-1"),
+    ("+data.filter.mode=cut", "data.filter.mode='cut'; valid:"),
+    ("dictionary.degree=0", "dictionary.degree=0: use an int >= 1"),
+    ("dictionary.degree=100", "lower the degree"),
+    ("identification.method=svd", "identification.method='svd'; valid:"),
+    ("controller.lmpc.horizon=0", "lmpc.horizon=0: use an int >= 1"),
+    ("controller.lmpc.w=-1", "lmpc weights w=-1"),
+    ("controller.lmpc.r=0", "lmpc weights w=1.0, r=0"),
+    ("controller.lmpc.state_cost=y", "lmpc.state_cost='y'; valid:"),
+    ("controller.u_min=5.0", "controller.u_min=5.0, controller.u_max=5.0: need finite u_min < u_max"),
+    ("clf.c_lower=2.0", "clf.c_lower=2.0, clf.c_upper=1.0: need 0 < c_lower < c_upper"),
+    ("clf.c_lower=-1.0", "need 0 < c_lower < c_upper"),
+    ("clf.gamma=-1", "clf.gamma=-1: use a finite number >= 0"),
+    ("clf.solver=MOSEK", "clf.solver='MOSEK'; valid:"),
+    ("clf.method=magic", "clf.method='magic'; valid:"),
+    ("sim.x0=[nan,0.0]", "sim.x0=[nan, 0.0]: give 2 finite numbers"),
+    ("sim.x0=[3.0,3.0]", "lies outside the data region"),
+    ("sim.x0=[0.1]", "sim.x0=[0.1]: give 2 finite numbers"),
+    ("data.T=0.01", "16 training pairs"),
+    ("logging.flush_every=0", "logging.flush_every=0: use seconds > 0"),
+    ("data.dt=abc", "data.dt='abc': expected a number"),
+]
+
+
+@pytest.mark.parametrize("override,fragment", BAD, ids=[b[0] for b in BAD])
+def test_bad_input_is_refused_early_with_one_line(override, fragment, tmp_path):
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=SMALL + [override])
+    with pytest.raises(KexpError) as err:
+        run(cfg, tmp_path, echo=lambda *_: None)
+    msg = str(err.value)
+    assert fragment in msg and "\n" not in msg
+    assert not (tmp_path / "model.npz").exists() and not (tmp_path / "run.mcap").exists()  # nothing long started
+
+
+@pytest.mark.parametrize("argv,fragment", [
+    (["system=nope"], "Could not find 'system/nope' Available options in 'system': duffing linear"),
+    (["+experiment=nope"], "Could not find 'experiment/nope'"),
+    (["data.dtt=1"], "Could not override 'data.dtt'"),
+    (["sim.x0=[1,"], "no viable alternative"),
+])
+def test_composition_errors_are_one_line_exit_2(argv, fragment, capsys):
+    with pytest.raises(SystemExit) as ex:
+        _precheck(argv)
+    assert ex.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("kexp: error: ") and fragment in err[0]
+
+
+def test_cli_exit_code_and_no_traceback(tmp_path):
+    proc = subprocess.run(["kexp", "controller.u_min=9.0", f"hydra.run.dir={tmp_path}"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("kexp: error: controller.u_min=9.0")
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["status"] == "error" and not summary["completed"]
+
+
+def test_diverging_true_system_ends_with_status_diverged(tmp_path):
+    """An unstable linear system with almost no input authority: the run stops when ‖x‖ > diverge_bound, logs up
+    to there, and the summary says so."""
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        small = [o for o in SMALL if not o.startswith("controller.")]
+        cfg = compose(config_name="config", overrides=small + [
+            "system=linear", "system.params.A=[[1.0,0.0],[0.0,2.0]]", "dictionary.degree=1",
+            "controller=sontag", "controller.u_min=-0.001", "controller.u_max=0.001", "sim.T=10.0",
+            "sim.diverge_bound=50.0", "sim.x0=[0.5,0.5]", "data.sampler.radius=1.0"])
+    metrics = run(cfg, tmp_path, echo=lambda *_: None)
+    assert metrics["status"] == "diverged" and "left" in metrics["message"]
+    assert not metrics["metrics"]["success"]
+    log = read_log(tmp_path / "run.mcap")
+    assert log.completed and log.one("/summary")["status"] == "diverged"
+    steps = log.messages("/step")
+    assert 150 < len(steps) < 300  # e^{2t}·0.5 reaches 50 at t ≈ 2.3 s
+
+
+def test_sigkill_leaves_a_readable_log_up_to_its_last_second(tmp_path):
+    """A real run killed with SIGKILL mid-way: the log holds every step up to the last flush (≤ 1 s of simulated
+    time before the kill), kexp-render and kexp-diff work on it with a warning, summary.json says not completed."""
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen(["kexp", "sim.T=60.0", "logging.progress=true", "logging.rrd=false",
+                             f"hydra.run.dir={run_dir}"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                            text=False)
+    buf = b""
+    k_seen = 0
+    deadline = time.time() + 240
+    while time.time() < deadline:
+        chunk = os.read(proc.stderr.fileno(), 4096)
+        if not chunk:
+            break
+        buf += chunk
+        counts = re.findall(rb"(\d+)/6000", buf)
+        if counts:
+            k_seen = int(counts[-1])
+        if k_seen >= 800:  # 8 s of simulated time
+            break
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert k_seen >= 800, buf[-500:]
+    log = read_log(run_dir / "run.mcap")
+    assert not log.completed and log.warning
+    steps = log.messages("/step")
+    # the progress bar lags the loop, and the writer flushes each simulated second: all but the last second
+    assert len(steps) >= k_seen - 100 - 1
+    assert [s["k"] for s in steps] == list(range(len(steps)))
+    assert json.loads((run_dir / "summary.json").read_text())["completed"] is False
+    r = subprocess.run(["kexp-render", str(run_dir / "run.mcap"), "-o", str(tmp_path / "cut.rrd")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and (tmp_path / "cut.rrd").exists() and "warning" in r.stderr
+    d = subprocess.run(["kexp-diff", str(run_dir / "run.mcap"), str(run_dir / "run.mcap")], capture_output=True,
+                       text=True, timeout=120)
+    assert d.returncode == 0 and "warning" in d.stderr
+
+
+def _run_with_threads(tmp_path: Path, threads: int) -> Path:
+    env = dict(os.environ, OPENBLAS_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads),
+               MKL_NUM_THREADS=str(threads))
+    out = tmp_path / f"t{threads}"
+    subprocess.run(["kexp", *SMALL, "cache.enabled=false", f"hydra.run.dir={out}"], env=env, check=True,
+                   capture_output=True, timeout=300)
+    return out / "run.mcap"
+
+
+def test_deterministic_channels_do_not_depend_on_blas_threads(tmp_path):
+    a, b = _run_with_threads(tmp_path, 1), _run_with_threads(tmp_path, 2)
+    res = diff_logs(a, b)  # exact: every deterministic channel, every field
+    assert res.equal, res.report()
