@@ -19,3 +19,11 @@ class DataError(KexpError, ValueError):
 
 class ModelFileError(KexpError, OSError):
     """A model file is missing, corrupt, or from another format version."""
+
+
+def require_number(value, key: str, *, integer: bool = False) -> None:
+    """Raise a ConfigError unless ``value`` is a real number (an int if ``integer``); bools are not numbers."""
+    import numbers
+    ok = isinstance(value, numbers.Integral if integer else numbers.Real) and not isinstance(value, bool)
+    if not ok:
+        raise ConfigError(f"{key}={value!r}: expected {'an integer' if integer else 'a number'}")

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError, KexpError
+from ..errors import ConfigError, KexpError, require_number
 from .certificate import CertificateReport, check_certificate
 from .lyapunov import QuadraticLyapunov
 
@@ -46,6 +46,9 @@ class ClfConfig:
     eps: float = 1e-4
 
     def __post_init__(self):
+        for key in ("gamma", "c_lower", "c_upper", "q_x", "r_u", "eps", "rhat_floor"):
+            require_number(getattr(self, key), f"clf.{key}")
+        require_number(self.grid, "clf.grid", integer=True)
         if self.method not in METHODS:
             raise ConfigError(f"clf.method={self.method!r}; valid: {METHODS}")
         if not (self.q_x > 0 and self.r_u > 0 and self.eps > 0):

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
 from .kernels import rollout, rollout_sensitivity
 from .qp import DenseQp
@@ -47,6 +47,10 @@ class LmpcConfig:
     qp_max_iter: int = 100
 
     def __post_init__(self):
+        for key in ("w", "r", "terminal", "tol", "slack_weight", "qp_eps"):
+            require_number(getattr(self, key), f"lmpc.{key}")
+        for key in ("max_iter", "qp_max_iter"):
+            require_number(getattr(self, key), f"lmpc.{key}", integer=True)
         if not (isinstance(self.horizon, (int, np.integer)) and self.horizon >= 1):
             raise ConfigError(f"lmpc.horizon={self.horizon}: use an int >= 1")
         if not (self.w > 0 and self.r > 0 and np.isfinite(self.w) and np.isfinite(self.r)):

@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, require_number
 from ..systems.base import ControlAffineSystem
 from .dataset import PAIR_RULES, DataReport, Dataset
 from .integrate import IntegrationFailure, IntegratorOptions, integrate
@@ -20,6 +20,9 @@ class Excitation:
     hold: int = 10
 
     def __post_init__(self):
+        require_number(self.low, "data.excitation.low")
+        require_number(self.high, "data.excitation.high")
+        require_number(self.hold, "data.excitation.hold", integer=True)
         if not (np.isfinite(self.low) and np.isfinite(self.high) and self.low < self.high):
             raise ConfigError(f"data.excitation: need finite low < high, got {self.low}, {self.high}")
         if self.hold < 1:
@@ -87,6 +90,9 @@ class DataConfig:
     integrator: IntegratorOptions = field(default_factory=IntegratorOptions)
 
     def __post_init__(self):
+        require_number(self.dt, "data.dt")
+        require_number(self.T, "data.T")
+        require_number(self.seed, "data.seed", integer=True)
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ConfigError(f"data.dt={self.dt}: the sampling time must be > 0")
         if not (np.isfinite(self.T) and self.T >= self.dt):

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..data.dataset import Dataset
 from ..dictionary import Monomials
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, require_number
 from ..systems.base import ControlAffineSystem
 from .edmd import METHODS, fit_least_squares
 from .eigen import IdentificationWarning, eigenfunctions
@@ -46,6 +46,9 @@ class IdentifyConfig:
     prediction_horizon: float = 1.0
 
     def __post_init__(self):
+        for key in ("rcond", "residual_horizon", "prediction_horizon", "holdout"):
+            require_number(getattr(self, key), f"identification.{key}")
+        require_number(self.chunk_size, "identification.chunk_size", integer=True)
         if self.method not in METHODS:
             raise ConfigError(f"identification.method={self.method!r}; valid: {METHODS}")
         if not 0 < self.rcond < 1:

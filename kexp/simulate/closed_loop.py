@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
-from ..errors import ConfigError
+from ..errors import ConfigError, require_number
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,8 @@ class SimConfig:
     integrator: IntegratorOptions = field(default_factory=lambda: IntegratorOptions(batch=1))
 
     def __post_init__(self):
+        for key in ("T", "dt", "tol", "r", "diverge_bound"):
+            require_number(getattr(self, key), f"sim.{key}")
         if not (self.dt > 0 and self.T >= self.dt):
             raise ConfigError(f"sim: need 0 < dt <= T, got dt={self.dt}, T={self.T}")
         if not self.tol > 0:
