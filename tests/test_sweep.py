@@ -227,3 +227,16 @@ def test_a_broken_job_does_not_stop_the_sweep(tmp_path):
     assert "kexp: error: sim.x0=[0.1, 0.2, 0.3]" in proc.stderr
     rows = rep.aggregate(sweep)
     assert sorted(r["status"] for r in rows) == ["completed", "error"]
+
+
+def test_a_job_inside_a_joblib_sweep_logs_the_same_as_a_single_run(joblib_sweep, tmp_path):
+    """Determinism: job 0 of the sweep and a plain run with the same overrides have identical deterministic
+    channels, except the config's own record of the Hydra run mode."""
+    from kexp.recording import diff_logs, read_log
+    single = tmp_path / "single"
+    proc = subprocess.run(_script("kexp") + ["sim.x0=[0.5,0.5]", "sim.tol=0.5", *QUICK, f"hydra.run.dir={single}"],
+                          capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    a, b = read_log(joblib_sweep / "0" / "run.mcap"), read_log(single / "run.mcap")
+    res = diff_logs(a, b)
+    assert res.equal, res.report()

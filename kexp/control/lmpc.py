@@ -173,7 +173,7 @@ class Lmpc:
         elif active == "21f":
             G[-1, : self.m] = beta0                  # u_0 is the first block's input
             h_u[-1] = rhs_21f
-        return Z, H, g, G, h_u
+        return Z, H, g, G, h_u, c, Sj
 
     # -- one sampling instant ---------------------------------------------------------------------------------
     def step(self, x0: np.ndarray, z0: np.ndarray) -> ControlStep:
@@ -199,7 +199,7 @@ class Lmpc:
         res = None
         it = 0
         for it in range(1, cfg.max_iter + 1):
-            Z, H, g, G, h_u = self._qp_data(z0, Ubar, active, rhs_21f, beta0)
+            Z, H, g, G, h_u, lin_c, lin_S = self._qp_data(z0, Ubar, active, rhs_21f, beta0)
             res = self.qp.solve(H, g, G, h_u, self.x_l, self.x_u)
             qp_iters += res.iterations
             if not res.success:
@@ -217,10 +217,13 @@ class Lmpc:
         Z = None
         want = self.prediction_every > 0 and self._count % self.prediction_every == 0
         self._count += 1
-        if active == "21e" or want:  # the exact prediction of the applied plan
+        if want:  # the exact prediction of the applied plan, for the log
             Z = rollout(self.lam, self.B, self.b, self.model.dt, z0, Ubar, self.bos)
         if active == "21e":
-            vmax = float(np.max(np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:])))
+            # slack and binding as the QP saw them: the linearised prediction at the applied plan (an exact rollout
+            # here cost 0.48 ms, a quarter of the step; the plan's exact prediction is logged when requested)
+            zl = lin_c + lin_S @ Ubar.reshape(-1)
+            vmax = float(np.max(np.einsum("jk,kl,jl->j", zl, self.P, zl)))
             slack = max(0.0, vmax - self.clf.r_hat)
             binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
         elif active == "21f":
