@@ -89,6 +89,31 @@ def region_of(V0: float, r: float, r_hat: float) -> str:
     return "inner" if V0 <= r_hat else ("ring" if V0 <= r else "outside")
 
 
+@dataclass(frozen=True)
+class LyapunovContext:
+    """What eq. 21 needs to know about z(t_k): V, the region, h(z), L_BV(z), the (21f) bound and the active
+    Lyapunov constraint.  Shared by every solver of the LMPC problem."""
+
+    V0: float
+    region: str
+    h0: np.ndarray
+    beta0: np.ndarray
+    rhs_21f: float
+    active: str
+
+
+def lyapunov_context(clf, law, config: LmpcConfig, z0: np.ndarray) -> LyapunovContext:
+    V0 = float(clf.lyap.value(z0))
+    region = region_of(V0, clf.r, clf.r_hat)
+    h0 = law(z0[None])[0]
+    beta0 = clf.lyap.lie(z0[None])[1][0]
+    if region == "inner":
+        active = "21e" if config.use_21e else "none"
+    else:
+        active = "21f" if config.use_21f else "none"
+    return LyapunovContext(V0, region, h0, beta0, float(beta0 @ h0), active)
+
+
 class Lmpc:
     """Stateful controller: call :meth:`step` with z(t_k) each sampling instant; :meth:`reset` between runs."""
 
@@ -181,17 +206,8 @@ class Lmpc:
         t0 = time.perf_counter()
         cfg = self.cfg
         z0 = np.ascontiguousarray(z0, dtype=float)
-        lyap = self.clf.lyap
-        V0 = float(lyap.value(z0))
-        region = region_of(V0, self.clf.r, self.clf.r_hat)
-        h0 = self.law(z0[None])[0]
-        _, beta0 = lyap.lie(z0[None])
-        beta0 = beta0[0]
-        rhs_21f = float(beta0 @ h0)
-        if region == "inner":
-            active = "21e" if cfg.use_21e else "none"
-        else:
-            active = "21f" if cfg.use_21f else "none"
+        ctx = lyapunov_context(self.clf, self.law, cfg, z0)
+        region, h0, beta0, rhs_21f, active = ctx.region, ctx.h0, ctx.beta0, ctx.rhs_21f, ctx.active
         if not np.all(np.isfinite(z0)):
             return self._fallback(h0, "non-finite state z", region, active, t0, "not_run", 0, 0)
         Ubar = self._blocks_from_steps(self._useq)

@@ -45,7 +45,7 @@ from ..errors import ConfigError
 from .blocking import block_of_step, block_sizes
 from .explicit import linearise
 from .kernels import rollout
-from .lmpc import ControlStep, LmpcConfig, region_of
+from .lmpc import ControlStep, LmpcConfig, lyapunov_context, region_of
 
 IPOPT_OK = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 DISCRETISATIONS = ("exact", "rk4")
@@ -278,17 +278,8 @@ class IpoptLmpc:
         t0 = time.perf_counter()
         cfg, N, k = self.cfg, self.cfg.horizon, self.k
         z0 = np.ascontiguousarray(z0, dtype=float)
-        lyap = self.clf.lyap
-        V0 = float(lyap.value(z0))
-        region = region_of(V0, self.clf.r, self.clf.r_hat)
-        h0 = self.law(z0[None])[0]
-        _, beta0 = lyap.lie(z0[None])
-        beta0 = beta0[0]
-        rhs_21f = float(beta0 @ h0)
-        if region == "inner":
-            active = "21e" if cfg.use_21e else "none"
-        else:
-            active = "21f" if cfg.use_21f else "none"
+        ctx = lyapunov_context(self.clf, self.law, cfg, z0)
+        V0, region, h0, beta0, rhs_21f, active = ctx.V0, ctx.region, ctx.h0, ctx.beta0, ctx.rhs_21f, ctx.active
         if not np.all(np.isfinite(z0)):
             return self._fallback(h0, "non-finite state z", region, active, t0, "not_run", 0)
         Ubar = self._blocks_from_steps(self._useq)
