@@ -279,7 +279,7 @@ class IpoptLmpc:
         cfg, N, k = self.cfg, self.cfg.horizon, self.k
         z0 = np.ascontiguousarray(z0, dtype=float)
         ctx = lyapunov_context(self.clf, self.law, cfg, z0)
-        V0, region, h0, beta0, rhs_21f, active = ctx.V0, ctx.region, ctx.h0, ctx.beta0, ctx.rhs_21f, ctx.active
+        region, h0, beta0, rhs_21f, active = ctx.region, ctx.h0, ctx.beta0, ctx.rhs_21f, ctx.active
         if not np.all(np.isfinite(z0)):
             return self._fallback(h0, "non-finite state z", region, active, t0, "not_run", 0)
         Ubar = self._blocks_from_steps(self._useq)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import KexpError
-from .reader import LogError, RunLog, read_log
+from .reader import RunLog, read_log
 
 APPLICATION_ID = "kexp"
 ACTIVE_CODES = {"none": 0.0, "21e": 1.0, "21f": 2.0}   # constraint activity as a number (other values: NaN)

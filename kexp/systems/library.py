@@ -2,7 +2,7 @@
 invariant subspaces, and a Duffing oscillator.  All vectorised over leading axes of ``x`` (..., n)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
