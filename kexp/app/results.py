@@ -63,7 +63,10 @@ def table(paths: list[str | Path]) -> str:
         settle = settle[np.isfinite(settle)]
         med = np.array([_f(r["solve_median_ms"]) for r in ok])
         p99 = np.array([_f(r["solve_p99_ms"]) for r in ok])
-        certs = sorted({r["certificate"] for r in ok if r["certificate"]})
+        words = {"global": "Prop. 1 holds", "samples": "Prop. 1 fails; V̇(h) < 0 on the grid", "fails": "not a CLF"}
+        certs = sorted({words.get(r["certificate"], r["certificate"]) for r in ok if r["certificate"]})
+        if config in ("lqr", "nmpc"):
+            certs = ["n/a (true model)"]
         fmt = lambda a, f=".3f", agg=np.median: "–" if a.size == 0 else format(agg(a), f)  # noqa: E731
         lines.append(
             f"| {system} | {config} | {succ}/{len(rows)} | {fmt(cost)} | {fmt(cost, agg=np.max)} | "
