@@ -72,5 +72,17 @@ def plain(obj: Any) -> Any:
     return str(obj)
 
 
+_DUMPS = json.JSONEncoder(sort_keys=True, separators=(",", ":"), allow_nan=False).encode
+
+
 def encode(payload: dict) -> bytes:
-    return json.dumps(plain(payload), sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+    return _DUMPS(plain(payload)).encode()
+
+
+def encode_plain(payload: dict) -> bytes:
+    """Fast path for a payload already made of JSON-safe Python values (finite floats, lists, str, bool, None);
+    falls back to :func:`encode` if a non-finite float or a numpy value slipped in."""
+    try:
+        return _DUMPS(payload).encode()
+    except (ValueError, TypeError):
+        return encode(payload)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from .schema import CHANNELS, encode
+from .schema import CHANNELS, encode, encode_plain
 
 LIBRARY = "kexp-recording/1"   # fixed, so the file bytes do not change with the mcap package version
 
@@ -35,9 +35,11 @@ class RunLogger:
         self._next_flush = flush_every
         self._closed = False
 
-    def write(self, topic: str, t: float, payload: dict) -> None:
+    def write(self, topic: str, t: float, payload: dict, *, plain: bool = False) -> None:
+        """Add one message; ``plain=True`` promises JSON-safe Python values (a faster encoder, same bytes)."""
         ns = _ns(t)
-        self._w.add_message(channel_id=self._ch[topic], log_time=ns, publish_time=ns, data=encode(payload),
+        data = encode_plain(payload) if plain else encode(payload)
+        self._w.add_message(channel_id=self._ch[topic], log_time=ns, publish_time=ns, data=data,
                             sequence=self._seq[topic])
         self._seq[topic] += 1
 
@@ -61,12 +63,14 @@ class RunLogger:
                                  "boundary_r_hat": [] if boundary_r_hat is None else boundary_r_hat})
 
     def log_step(self, rec, control_step=None, model=None) -> None:
-        self.write("/step", rec.t, {
-            "k": rec.k, "t": rec.t, "x": rec.x, "z": rec.z, "u": rec.u, "V": rec.V, "Vdot": rec.Vdot,
-            "region": rec.region, "active": rec.active, "binds": rec.binds, "slack": rec.slack,
-            "status": rec.status, "qp_status": rec.qp_status, "iterations": rec.iterations,
-            "qp_iterations": rec.qp_iterations, "fallback": rec.fallback, "reason": rec.reason})
-        self.write("/timing", rec.t, {"k": rec.k, "t": rec.t, "solve_time": rec.solve_time})
+        t = float(rec.t)
+        self.write("/step", t, {
+            "k": int(rec.k), "t": t, "x": rec.x.tolist(), "z": np.asarray(rec.z).tolist(), "u": rec.u.tolist(),
+            "V": float(rec.V), "Vdot": float(rec.Vdot), "region": rec.region, "active": rec.active,
+            "binds": bool(rec.binds), "slack": float(rec.slack), "status": rec.status, "qp_status": rec.qp_status,
+            "iterations": int(rec.iterations), "qp_iterations": int(rec.qp_iterations),
+            "fallback": bool(rec.fallback), "reason": rec.reason}, plain=True)
+        self.write("/timing", t, {"k": int(rec.k), "t": t, "solve_time": float(rec.solve_time)}, plain=True)
         if (self.prediction_every and control_step is not None and control_step.predicted is not None
                 and model is not None and rec.k % self.prediction_every == 0):
             Z = control_step.predicted
