@@ -23,12 +23,12 @@ BAD = [
     ("system.name=no_such_module:Cls", "cannot import module 'no_such_module'"),
     ("controller.kind=mpc", "controller.kind='mpc'; valid:"),
     ("controller.law=foo", "controller.law='foo'; valid:"),
-    ("data.dt=0", "data.dt=0: the sampling time must be > 0"),
+    ("data.dt=0", "data.dt=0.0: the sampling time must be > 0"),
     ("data.dt=20", "data.T=3.0: the duration must be >= dt=20"),
     ("data.pairs=forward", "data.pairs='forward'; valid:"),
     ("data.sampler.kind=disc", "unknown sampler 'disc'; valid:"),
     ("data.sampler.radius=-1", "data.sampler.radius=-1"),
-    ("+data.filter.mode=cut", "data.filter.mode='cut'; valid:"),
+    ("data.filter.mode=cut", "data.filter.mode='cut'; valid:"),
     ("dictionary.degree=0", "dictionary.degree=0: use an int >= 1"),
     ("dictionary.degree=100", "lower the degree"),
     ("identification.method=svd", "identification.method='svd'; valid:"),
@@ -39,15 +39,15 @@ BAD = [
     ("controller.u_min=5.0", "controller.u_min=5.0, controller.u_max=5.0: need finite u_min < u_max"),
     ("clf.c_lower=2.0", "clf.c_lower=2.0, clf.c_upper=1.0: need 0 < c_lower < c_upper"),
     ("clf.c_lower=-1.0", "need 0 < c_lower < c_upper"),
-    ("clf.gamma=-1", "clf.gamma=-1: use a finite number >= 0"),
+    ("clf.gamma=-1", "clf.gamma=-1.0: use a finite number >= 0"),
     ("clf.solver=MOSEK", "clf.solver='MOSEK'; valid:"),
     ("clf.method=magic", "clf.method='magic'; valid:"),
     ("sim.x0=[nan,0.0]", "sim.x0=[nan, 0.0]: give 2 finite numbers"),
     ("sim.x0=[3.0,3.0]", "lies outside the data region"),
     ("sim.x0=[0.1]", "sim.x0=[0.1]: give 2 finite numbers"),
     ("data.T=0.01", "16 training pairs"),
-    ("logging.flush_every=0", "logging.flush_every=0: use seconds > 0"),
-    ("data.dt=abc", "data.dt='abc': expected a number"),
+    ("logging.flush_every=0", "logging.flush_every=0.0: use seconds > 0"),
+    ("+identification.methd=qr", "identification.methd: unknown key; valid keys:"),  # `+` bypasses the schema
 ]
 
 
@@ -65,7 +65,16 @@ def test_bad_input_is_refused_early_with_one_line(override, fragment, tmp_path):
 @pytest.mark.parametrize("argv,fragment", [
     (["system=nope"], "Could not find 'system/nope' Available options in 'system': duffing linear"),
     (["+experiment=nope"], "Could not find 'experiment/nope'"),
-    (["data.dtt=1"], "Could not override 'data.dtt'"),
+    (["data.dtt=1"], "data.dtt: Key 'dtt' not in 'DataConfigSchema'; valid keys: ['T', 'dt', "),
+    # wrong types fail at composition against the schema (kexp/app/schema.py), with the full key
+    (["data.dt=abc"], "data.dt: Value 'abc' of type 'str' could not be converted to Float"),
+    (["controller.lmpc.horizon=1.5"], "controller.lmpc.horizon: Value '1.5' of type 'float' could not be converted"),
+    (["controller.lmpc.use_21e=maybe"], "controller.lmpc.use_21e: Value 'maybe' is not a valid bool"),
+    (["clf.gamma=[1,2]"], "clf.gamma: Value '[1, 2]' of type 'list' could not be converted to Float"),
+    (["controller.lmpc.horzion=10"], "controller.lmpc.horzion: Key 'horzion' not in 'LmpcConfigSchema'"),
+    # in a sweep, each swept value is checked against the schema before Hydra composes any job
+    (["--multirun", "clf.gamma=1,fast"], "clf.gamma: Value 'fast' of type 'str' could not be converted to Float"),
+    (["-m", "sim.T=1,2", "data.dtt=1,2"], "data.dtt: Key 'dtt' not in 'DataConfigSchema'"),
     (["sim.x0=[1,"], "no viable alternative"),
 ])
 def test_composition_errors_are_one_line_exit_2(argv, fragment, capsys):

@@ -82,7 +82,8 @@ def build_data(cfg: Mapping[str, Any]):
     if "kind" not in sampler_cfg:
         raise ConfigError("data.sampler.kind is missing; valid: circle, box, points")
     kind = sampler_cfg.pop("kind")
-    sampler = make_sampler(kind, **sampler_cfg)
+    # the schema holds every sampler's parameters: those left null are not this sampler's (or take its default)
+    sampler = make_sampler(kind, **{k: v for k, v in sampler_cfg.items() if v is not None})
     exc = cfg.pop("excitation", None)
     flt = cfg.pop("filter", None)
     integ = cfg.pop("integrator", None)
@@ -144,6 +145,8 @@ class ControllerSpec:
 def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
     from ..control import LAWS, LmpcConfig
     cfg = dict(_plain(cfg))
+    # the schema holds every kind's keys; null ones are not set (kexp.app.schema.ControllerSchema)
+    cfg = {k: v for k, v in cfg.items() if not (k in ("lmpc", "q", "r", "horizon") and v is None)}
     kind = cfg.pop("kind", None)
     if kind not in CONTROLLER_KINDS:
         raise ConfigError(f"controller.kind={kind!r}; valid: {CONTROLLER_KINDS}")
@@ -222,12 +225,14 @@ def build_sim(cfg: Mapping[str, Any], system, dt: float, sampler=None):
     if sampler is not None and not allow_outside and hasattr(sampler, "contains") and not sampler.contains(x0, xe):
         raise ConfigError(f"sim.x0={x0.tolist()} lies outside the data region ({sampler.describe()}): the model is "
                           "not fit there; move x0, widen the data, or set sim.allow_outside_data=true")
-    return construct(SimConfig, cfg, "sim", dt=dt), x0, open_loop
+    integ = construct(IntegratorOptions, cfg.pop("integrator", None), "sim.integrator")
+    return construct(SimConfig, cfg, "sim", dt=dt, integrator=integ), x0, open_loop
 
 
 def build_logging(cfg: Mapping[str, Any]) -> dict:
+    from .schema import LoggingSchema
     cfg = dict(_plain(cfg))
-    defaults = {"mcap": True, "rrd": True, "prediction_every": 10, "flush_every": 1.0, "progress": "auto"}
+    defaults = {f.name: f.default for f in dataclasses.fields(LoggingSchema)}
     for key in cfg:
         if key not in defaults:
             raise ConfigError(f"logging.{key}: unknown key; valid keys: {sorted(defaults)}")

@@ -15,7 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from ..clf.levelset import level_set_boundary
 from ..data import collect
-from ..errors import KexpError
+from ..errors import ConfigError, KexpError
 from ..identify import identify
 from ..recording.schema import plain
 from ..recording.writer import RunLogger
@@ -26,6 +26,9 @@ from .build import (build_clf, build_controller, build_controller_spec, build_da
                     build_identification, build_logging, build_sim, build_system, check_data_budget)
 from .cache import Cache, key_of
 from .progress import Progress
+from .schema import register as _register_schema
+
+_register_schema()  # 'kexp_schema' in Hydra's ConfigStore: conf/config.yaml extends it
 
 
 def _versions() -> dict:
@@ -44,12 +47,14 @@ def config_hash(cfg_dict: dict) -> str:
 
 
 def _to_dict(cfg: Any) -> dict:
-    try:
-        from omegaconf import DictConfig as _DC, OmegaConf
-        if isinstance(cfg, _DC):
-            return OmegaConf.to_container(cfg, resolve=True)
-    except ImportError:  # pragma: no cover
-        pass
+    from omegaconf import DictConfig as _DC, OmegaConf
+    from omegaconf.errors import MissingMandatoryValue
+    if isinstance(cfg, _DC):
+        try:
+            return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+        except MissingMandatoryValue as exc:
+            key = getattr(exc, "full_key", None) or "a key"
+            raise ConfigError(f"{key} is missing (???): set it, e.g. {key}=<value>") from None
     return dict(cfg)
 
 
@@ -188,10 +193,36 @@ def _hydra_main(cfg: DictConfig) -> None:
             sys.exit(2)  # a single run: exit code 2; in a sweep the other jobs go on, the report counts this one
 
 
+def composition_error_line(exc: BaseException) -> str:
+    """One line for a config that does not compose: the key, the value and what went wrong, e.g.
+    "controller.lmpc.horizon: Value 'abc' of type 'str' could not be converted to Integer (override
+    controller.lmpc.horizon=abc)"."""
+    cause, seen = exc, set()
+    while cause is not None and not getattr(cause, "full_key", None) and id(cause) not in seen:
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    full_key = getattr(cause, "full_key", None)
+    if cause is not None and full_key:
+        import dataclasses
+        detail = str(cause).splitlines()[0].strip()
+        first = str(exc).splitlines()[0].strip()
+        schema = getattr(cause, "object_type", None)
+        if "not in" in detail and dataclasses.is_dataclass(schema):  # a misspelled key: list the valid ones
+            detail += f"; valid keys: {sorted(f.name for f in dataclasses.fields(schema))}"
+        return f"{full_key}: {detail} ({first[0].lower() + first[1:]})"[:500]
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    msg = " ".join(line for line in lines if not line.startswith(("See https", "Set the environment")))
+    msg = msg.split(" Config search path:")[0]
+    return (msg[:400] + " …") if len(msg) > 400 else (msg or type(exc).__name__)
+
+
 def _precheck(argv: list[str]) -> None:
-    """For a single run: compose the config first, so an unknown group option, preset or key, or a bad override,
-    is one line and exit code 2 (Hydra itself prints several lines and exits 1)."""
-    if any(a.startswith("-") for a in argv):  # --multirun, --cfg, --help, ...: leave it to Hydra
+    """For a single run: compose the config first, so an unknown group option, preset or key, a value of the wrong
+    type (the schema, kexp/app/schema.py) or a bad override is one line and exit code 2 (Hydra itself prints
+    several lines and exits 1)."""
+    if any(a in ("-m", "--multirun") for a in argv):
+        return _precheck_sweep(argv)
+    if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
         return
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
@@ -200,12 +231,40 @@ def _precheck(argv: list[str]) -> None:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
             compose(config_name="config", overrides=argv)
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
-        lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-        msg = " ".join(line for line in lines if not line.startswith(("See https", "Set the environment")))
-        msg = msg.split(" Config search path:")[0]
-        msg = (msg[:400] + " …") if len(msg) > 400 else (msg or type(exc).__name__)
-        print(f"kexp: error: {msg}", file=sys.stderr)
+        print(f"kexp: error: {composition_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
+
+
+def _precheck_sweep(argv: list[str]) -> None:
+    """For a multirun: Hydra composes every job's config before it launches any, and one value of the wrong type
+    or a misspelled key stops the whole sweep with a many-line message.  Check each swept value against the schema
+    first (microseconds each, no composition) and say which one in one line, exit code 2.  Group choices, ``+key``
+    additions and ``hydra.*`` keys are left to Hydra; value errors (ranges, u_min < u_max) are reported per job."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+    try:
+        overrides = OverridesParser.create().parse_overrides([a for a in argv if not a.startswith("-")])
+    except HydraException:
+        return  # a syntax error: Hydra's own message names it
+    from .schema import filled
+    schema = filled(_register_schema())
+    for ov in overrides:
+        key = ov.key_or_group
+        if ov.is_add() or ov.is_delete() or key.startswith("hydra") or "." not in key:
+            continue
+        values = list(ov.sweep_iterator()) if ov.is_sweep_override() else [ov.value()]
+        for value in values:
+            try:
+                OmegaConf.update(schema, key, value, merge=True)
+            except (OmegaConfBaseException, AssertionError) as exc:
+                if not isinstance(exc, OmegaConfBaseException):
+                    continue  # not a schema path (e.g. inside a free-form mapping): Hydra decides
+                wrapped = HydraException(f"Sweep value {key}={value!r} does not fit the config schema")
+                wrapped.__cause__ = exc
+                print(f"kexp: error: {composition_error_line(wrapped)}", file=sys.stderr)
+                sys.exit(2)
 
 
 def main() -> None:
