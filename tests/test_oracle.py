@@ -2,6 +2,7 @@
 
 Measured numbers quoted in comments come from this machine (2 cores); the asserted bounds leave margin around them.
 """
+import math
 import sys
 from dataclasses import replace
 
@@ -61,9 +62,12 @@ def _solve_both(vdp, lmpc, ipopt, x0, config=CFG):
     return z0, a, b, cost_a, cost_b
 
 
-def test_exact_discretisation_matches_kexp_rollout(vdp, pair):
+@pytest.mark.parametrize("discretisation", ["exact", "polynomial"])
+def test_exact_discretisation_matches_kexp_rollout(vdp, discretisation):
+    """Both exact forms (the Taylor series of the augmented exponential, and the same map regrouped as a polynomial
+    in u, IpoptLmpc's default for one input) against kexp's numba rollout over 20 steps."""
     _, model, _, _ = vdp
-    step_fn = pair[1].step_fn
+    step_fn = oracle.bilinear_step_function(model, -5.0, 5.0, discretisation)
     rng = np.random.default_rng(0)
     bos = block_of_step(np.ones(20, dtype=int))
     worst = 0.0
@@ -76,7 +80,21 @@ def test_exact_discretisation_matches_kexp_rollout(vdp, pair):
         for j in range(20):
             z = np.asarray(step_fn(z, U[j]), float).reshape(-1)
             worst = max(worst, float(np.max(np.abs(z - Z[j + 1]))))
-    assert worst < 1e-12   # measured 4.9e-15 (200 cases); RK4 with 8 substeps: 1.8e-11
+    assert worst < 1e-12   # measured 4.9e-15 (exact), 4.4e-15 (polynomial), 200 cases; RK4 with 8 substeps: 1.8e-11
+
+
+def test_polynomial_form_is_the_exact_map_for_one_input():
+    rng = np.random.default_rng(1)
+    lam, B, b = -np.eye(3), rng.standard_normal((2, 3, 3)), rng.standard_normal((2, 3))
+    with pytest.raises(ConfigError, match="polynomial step form is for one input; this model has m = 2"):
+        oracle.step_polynomial(lam, B, b, 0.01, 1, 13)
+    # one input: Σ_d u^d C_d [z; 1] equals the nested Taylor series at any u (here u = 3, q = 2 substeps)
+    C = oracle.step_polynomial(lam, B[:1], b[:1], 0.01, 2, 13)
+    A = np.zeros((4, 4))
+    A[:3, :3], A[:3, 3] = (lam + 3.0 * B[0]) * 0.005, 3.0 * b[0] * 0.005
+    T = sum(np.linalg.matrix_power(A, j) / math.factorial(j) for j in range(14))
+    assert C.shape == (27, 4, 4)
+    assert np.max(np.abs(sum(3.0 ** d * Cd for d, Cd in enumerate(C)) - T @ T)) < 1e-14
 
 
 # inner points: (21e) is imposed (not binding: the optimal plan decreases V); (1, -1) is outside Ω_r where (21f)

@@ -7,7 +7,7 @@
 * :class:`NmpcOracle` is a nonlinear MPC on the TRUE system (needs its drift symbolically, see
   :func:`register_symbolic`), a yardstick for what any model-based controller could achieve.
 
-Discretisation of the bilinear model.  ``discretisation='exact'`` (default): for the held input u the model is
+Discretisation of the bilinear model.  ``discretisation='exact'``: for the held input u the model is
 linear, ż = A_u z + c_u, and one step is expm([[A_u, c_u], [0, 0]]Δ)·[z; 1], evaluated symbolically as its Taylor
 series applied to the vector [z; 1] (q substeps of Δ/q, p terms).  q and p are chosen from an upper bound θ of
 ‖[[A_u, c_u], [0, 0]]Δ‖_∞ over the input box (θ/q ≤ 0.5 and (θ/q)^{p+1}/(p+1)!·e^{θ/q} ≤ 2⁻⁵⁶), so the truncation is
@@ -17,7 +17,9 @@ below rounding — the same construction as kexp's numba kernel (``kernels.expm_
 |u| ≤ 5, 20 steps, 200 random z0 = Ψ(x0) − Ψ(0) with x0 ∈ [−1, 1]² and random inputs in [−5, 5]):
 max |z_casadi − z_kexp| = 4.9e-15 (2.3e-15 relative) for 'exact' (θ = 0.29: q = 1, p = 13), 1.8e-11 for 'rk4'
 with 8 substeps (2.7e-10 with 4, 7.0e-8 with 1).  'exact' is also the cheaper one (13 matrix-vector products per
-step against RK4's 32).
+step against RK4's 32).  ``discretisation='polynomial'`` (one input; chosen by the default 'auto') is the same exact
+map with its terms regrouped as a polynomial in u, which keeps CasADi's derivatives small enough for horizon 100
+(see :func:`bilinear_step_function`).
 
 IPOPT runs with ``print_level 0``, no banner, exact Hessian and ``bound_relax_factor 0`` (so s ≥ 0 and the input
 bounds hold exactly and IPOPT's objective is the problem's, not a relaxed one's).  The NLP is built once per
@@ -48,7 +50,7 @@ from .kernels import rollout
 from .lmpc import ControlStep, LmpcConfig, lyapunov_context, region_of
 
 IPOPT_OK = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-DISCRETISATIONS = ("exact", "rk4")
+DISCRETISATIONS = ("auto", "exact", "polynomial", "rk4")
 
 
 def _casadi():
@@ -138,23 +140,89 @@ def rk4_step(f, x, u, dt, substeps: int):
     return x
 
 
-def bilinear_step_function(model, u_min, u_max, discretisation: str = "exact", substeps: int | None = None):
-    """casadi Function (z, u) -> z⁺, one sample-and-hold step of the bilinear model."""
+def step_polynomial(lam, B, b, dt: float, q: int, p: int) -> np.ndarray:
+    """Coefficients C (D+1, k+1, k+1), D = q·p, of the exact step for a single input as a polynomial in u:
+    T(u)^q [z; 1] = Σ_d u^d C_d [z; 1], T(u) = Σ_{j≤p} (A₀ + uA₁)^j / j!, A₀ = [[Λ, 0], [0, 0]]·Δ/q,
+    A₁ = [[B, b], [0, 0]]·Δ/q — the same map as :func:`bilinear_step_exact` with (q, p), its terms regrouped."""
+    lam, B, b = np.asarray(lam, float), np.asarray(B, float), np.asarray(b, float)
+    k = lam.shape[0]
+    if B.shape[0] != 1:
+        raise ConfigError(f"the polynomial step form is for one input; this model has m = {B.shape[0]} "
+                          "(use discretisation='exact')")
+    h = dt / q
+    A0 = np.zeros((k + 1, k + 1))
+    A0[:k, :k] = lam * h
+    A1 = np.zeros((k + 1, k + 1))
+    A1[:k, :k] = B[0] * h
+    A1[:k, k] = b[0] * h
+    power = np.zeros((p + 1, k + 1, k + 1))   # coefficients of (A₀ + uA₁)^j in u
+    power[0] = np.eye(k + 1)
+    T = power.copy()
+    for j in range(1, p + 1):
+        new = np.zeros_like(power)
+        new[: j + 1] = power[: j + 1] @ A0
+        new[1: j + 1] += power[:j] @ A1
+        power = new
+        T += power / math.factorial(j)
+    C = T.copy()
+    for _ in range(q - 1):                     # the q substeps: T(u)·(T(u)^s)
+        out = np.zeros((C.shape[0] + p, k + 1, k + 1))
+        for a in range(C.shape[0]):
+            for c in range(p + 1):
+                out[a + c] += T[c] @ C[a]
+        C = out
+    return C
+
+
+def polynomial_terms(C: np.ndarray, umax: float, trunc: float = 1e-18) -> int:
+    """How many leading terms of Σ_d u^d C_d to keep: the trailing ones with max|C_d|·umax^d < trunc·max|C_0|
+    change the map by less than rounding."""
+    size = np.array([np.abs(Cd).max() * umax ** d for d, Cd in enumerate(C)])
+    return int(np.max(np.flatnonzero(size >= trunc * size[0]))) + 1
+
+
+def _step_order(model, u_min, u_max, substeps):
+    """(q, p) of the exact step for the input box (module docstring)."""
+    lam, B, b, m = np.asarray(model.Lambda), np.asarray(model.B), np.asarray(model.b), model.m
+    lo, hi = _bounds(u_min, u_max, m)
+    umax = np.maximum(np.abs(lo), np.abs(hi))
+    rows = np.abs(lam).sum(axis=1) + sum(umax[i] * (np.abs(B[i]).sum(axis=1) + np.abs(b[i])) for i in range(m))
+    q, p = taylor_terms(float(rows.max()) * float(model.dt))
+    if substeps is not None:
+        q = max(q, int(substeps))
+    return q, p, float(np.max(umax))
+
+
+def bilinear_step_function(model, u_min, u_max, discretisation: str = "auto", substeps: int | None = None):
+    """casadi Function (z, u) -> z⁺, one sample-and-hold step of the bilinear model.
+
+    'exact': the Taylor series of the augmented matrix exponential applied to [z; 1] (module docstring).
+    'polynomial' (one input): the SAME map with its terms regrouped as a polynomial in u with constant matrix
+    coefficients, Σ_d u^d (C_d z + c_d), trailing terms below rounding dropped, evaluated by Horner.  The exact
+    form's expression graph nests u inside q·p matrix-vector products, so CasADi's exact Hessian of a long
+    horizon grows with k²·horizon: measured on Van der Pol (k = 20), horizon 20 needs 3.5 GB and 3.4 s per IPOPT
+    step, horizon 100 ≈ 17 GB.  In polynomial form ∂z⁺/∂z is a polynomial in u with constant coefficients:
+    horizon 100 builds in seconds (benchmarks/lmpc.py), and the two forms agree to ~1e-15 (tests/test_oracle.py).
+    'auto' (default): 'polynomial' for one input, 'exact' otherwise.  'rk4': classical RK4 with ``substeps``."""
     ca = _casadi()
     if discretisation not in DISCRETISATIONS:
         raise ConfigError(f"oracle discretisation={discretisation!r}; valid: {DISCRETISATIONS}")
     k, m = model.k, model.m
+    if discretisation == "auto":
+        discretisation = "polynomial" if m == 1 else "exact"
     z = ca.SX.sym("z", k)
     u = ca.SX.sym("u", m)
     lam, B, b, dt = np.asarray(model.Lambda), np.asarray(model.B), np.asarray(model.b), float(model.dt)
     if discretisation == "exact":
-        lo, hi = _bounds(u_min, u_max, m)
-        umax = np.maximum(np.abs(lo), np.abs(hi))
-        rows = np.abs(lam).sum(axis=1) + sum(umax[i] * (np.abs(B[i]).sum(axis=1) + np.abs(b[i])) for i in range(m))
-        q, p = taylor_terms(float(rows.max()) * dt)
-        if substeps is not None:
-            q = max(q, int(substeps))
+        q, p, _ = _step_order(model, u_min, u_max, substeps)
         zn = bilinear_step_exact(ca, lam, B, b, dt, z, u, q, p)
+    elif discretisation == "polynomial":
+        q, p, umax = _step_order(model, u_min, u_max, substeps)
+        C = step_polynomial(lam, B, b, dt, q, p)
+        keep = polynomial_terms(C, umax)
+        zn = ca.mtimes(ca.DM(C[keep - 1][:k, :k]), z) + ca.DM(C[keep - 1][:k, k])
+        for d in range(keep - 2, -1, -1):
+            zn = u[0] * zn + ca.mtimes(ca.DM(C[d][:k, :k]), z) + ca.DM(C[d][:k, k])
     else:
         sub = 8 if substeps is None else int(substeps)
         if sub < 1:
@@ -210,7 +278,7 @@ class IpoptLmpc:
 
     name = "ipopt_lmpc"
 
-    def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, discretisation: str = "exact",
+    def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, discretisation: str = "auto",
                  substeps: int | None = None, ipopt_tol: float = 1e-10, ipopt_max_iter: int = 1000,
                  ipopt_options: dict | None = None, record_prediction: bool = False):
         ca = _casadi()
