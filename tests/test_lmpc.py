@@ -158,3 +158,17 @@ def test_explicit_sontag_is_slower_than_lmpc(vdp):
     err = np.linalg.norm(run.x, axis=1)
     assert run.status == "completed" and err[-1] < 0.5 * err[0]
     assert np.all(np.diff([r.V for r in run.records]) < 0)  # V decreases at every sample
+
+
+@pytest.mark.parametrize("norm", [0.0, 1e-3, 0.3, 0.5, 2.0, 40.0])
+def test_expm_small_matches_scipy(norm):
+    """The kernel's expm (scaling and squaring, Taylor degree from the norm, Paterson–Stockmeyer) to rounding,
+    from a zero matrix to one that needs 7 squarings."""
+    import scipy.linalg as sla
+    from kexp.control.kernels import expm_small
+    rng = np.random.default_rng(3)
+    M = rng.standard_normal((21, 21))
+    M *= norm / max(np.max(np.abs(M).sum(axis=1)), 1e-300)
+    ref = sla.expm(M)
+    # measured ≤ 6e-15 relative at the norms of the LMPC (≤ 0.5); squaring amplifies rounding at norm 40
+    assert np.max(np.abs(expm_small(M) - ref)) <= (1e-14 if norm <= 2 else 1e-12) * np.max(np.abs(ref))
