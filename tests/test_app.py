@@ -2,9 +2,11 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from kexp.app.main import CONF_DIR, run
 from kexp.errors import ConfigError
@@ -90,7 +92,11 @@ def test_schema_defaults_are_the_stages_defaults():
     assert cfg.controller.lmpc.horizon == LmpcConfig().horizon == 100
     assert cfg.clf.rhat_floor == ClfConfig().rhat_floor == 0.05
     assert cfg.identification.rcond == IdentifyConfig().rcond == 1e-13
-    assert cfg.data.integrator.rtol == 1e-10 and cfg.logging.prediction_every == 10
+    assert cfg.data.integrator.rtol == 1e-10 and cfg.logging.prediction_every == 20
+    # the logging schema is hand-written: its defaults must be the ones conf/logging/default.yaml states
+    yaml_logging = OmegaConf.load(Path(CONF_DIR) / "logging" / "default.yaml")
+    for key, value in yaml_logging.items():
+        assert cfg.logging[key] == value, key
 
 
 def test_cli_bad_input_exits_2_with_one_line(tmp_path):

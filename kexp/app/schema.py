@@ -92,7 +92,7 @@ class SamplerSchema:
 class LoggingSchema:
     mcap: bool = True                 # run.mcap: every control step, the model, the CLF, the open loop
     rrd: bool = True                  # run.rrd rendered from run.mcap at the end of the run
-    prediction_every: int = 10        # the LMPC's predicted horizon every k steps; 0: never
+    prediction_every: int = 20        # the LMPC's predicted horizon every k steps; 0: never
     flush_every: float = 1.0          # seconds of simulated time between flushes
     progress: Any = "auto"            # auto | true | false
 
