@@ -42,7 +42,7 @@ def test_encoder_writes_the_values_the_standard_library_would():
                "f32": np.float32(0.1), "f32s": np.array([0.1, 1e-8], dtype=np.float32), "f16": np.float16(0.1),
                "keys": {3: "x", "b": [np.float64(np.nan), np.int32(4), np.bool_(True)]},
                "strided": np.arange(6.0).reshape(2, 3)[:, ::2], "big": 2 ** 70, "neg0": -0.0, "tiny": 5e-324,
-               "obj": "<fixed>", "none": None, "carr": np.array([1 + 1j, 2 - 0.5j])}
+               "obj": Path("runs/a"), "none": None, "carr": np.array([1 + 1j, 2 - 0.5j])}
     for key, value in payload.items():
         single = {key: value}
         assert json.loads(encode(single)) == json.loads(_DUMPS(plain(single))), key

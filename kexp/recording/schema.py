@@ -87,8 +87,3 @@ def encode(payload: dict) -> bytes:
         return orjson.dumps(payload, default=plain, option=_OPTS)
     except TypeError:   # orjson.JSONEncodeError is a TypeError
         return _DUMPS(plain(payload)).encode()
-
-
-def encode_plain(payload: dict) -> bytes:
-    """Same bytes as :func:`encode`; kept for callers that promise JSON-safe Python values."""
-    return encode(payload)

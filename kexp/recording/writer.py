@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from .schema import CHANNELS, encode, encode_plain
+from .schema import CHANNELS, encode
 
 LIBRARY = "kexp-recording/1"   # fixed, so the file bytes do not change with the mcap package version
 
@@ -35,10 +35,10 @@ class RunLogger:
         self._next_flush = flush_every
         self._closed = False
 
-    def write(self, topic: str, t: float, payload: dict, *, plain: bool = False) -> None:
-        """Add one message; ``plain=True`` promises JSON-safe Python values (a faster encoder, same bytes)."""
+    def write(self, topic: str, t: float, payload: dict) -> None:
+        """Add one message (numpy values welcome: :func:`~kexp.recording.schema.encode` converts them)."""
         ns = _ns(t)
-        data = encode_plain(payload) if plain else encode(payload)
+        data = encode(payload)
         self._w.add_message(channel_id=self._ch[topic], log_time=ns, publish_time=ns, data=data,
                             sequence=self._seq[topic])
         self._seq[topic] += 1
@@ -69,8 +69,8 @@ class RunLogger:
             "V": float(rec.V), "Vdot": float(rec.Vdot), "region": rec.region, "active": rec.active,
             "binds": bool(rec.binds), "slack": float(rec.slack), "status": rec.status, "qp_status": rec.qp_status,
             "iterations": int(rec.iterations), "qp_iterations": int(rec.qp_iterations),
-            "fallback": bool(rec.fallback), "reason": rec.reason}, plain=True)
-        self.write("/timing", t, {"k": int(rec.k), "t": t, "solve_time": float(rec.solve_time)}, plain=True)
+            "fallback": bool(rec.fallback), "reason": rec.reason})
+        self.write("/timing", t, {"k": int(rec.k), "t": t, "solve_time": float(rec.solve_time)})
         if (self.prediction_every and control_step is not None and control_step.predicted is not None
                 and model is not None and rec.k % self.prediction_every == 0):
             Z = control_step.predicted
