@@ -2,8 +2,8 @@
 
 Runs the same closed loop without a log, with the per-step RunLogger (flush every simulated second), and with
 the LMPC's predicted horizon logged every 20 steps (the default) or 10 steps too (an extra exact rollout each
-time), interleaved, and prints the median wall times and their ratio.  Wall-time ratios between runs carry the machine's noise (a few %
-on a shared 2-core VM), so the cost of logging is also timed directly inside each run: the time spent in the
+time), interleaved, and prints the median wall times and their ratio.  Wall-time ratios between runs carry the
+machine's noise (a few % on a shared 2-core VM), so the cost of logging is also timed directly inside each run: the time spent in the
 logging callback, plus the exact rollouts the LMPC makes only to log its prediction (kexp.control.lmpc.rollout,
 wrapped here; in RTI mode nothing else calls it), as a share of the no-log run time.  One BLAS thread.
 
@@ -41,6 +41,7 @@ def main():
     clf = synthesize_clf(model, ClfConfig())
     h = make_law("sontag", clf.lyap, -5.0, 5.0)
     x0 = np.array([0.7, -0.5])
+    sim = SimConfig(T=10.0)
     every = {"no log": 0, "MCAP log": 0, "MCAP log + predictions every 20 steps (default)": 20,
              "MCAP log + predictions every 10 steps": 10}
     times = {mode: [] for mode in every}
@@ -73,7 +74,7 @@ def main():
                 cb = timed(logger) if logger else None
                 spent[0] = 0.0
                 t0 = time.perf_counter()
-                closed_loop(s, ctrl, x0, SimConfig(T=10.0), model=model, lyap=clf.lyap, on_step=cb)
+                closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap, on_step=cb)
                 if logger:
                     t1 = time.perf_counter()
                     logger.close()
@@ -81,15 +82,15 @@ def main():
                 times[mode].append(time.perf_counter() - t0)
                 inside[mode].append(spent[0])
     base = np.median(times["no log"])
-    print(f"closed loop, Van der Pol, LMPC (RTI), 1000 steps, {args.repeat} interleaved repeats (order rotated), "
-          "one BLAS thread\n")
+    print(f"closed loop, Van der Pol, LMPC (RTI), {sim.n_steps} steps, {args.repeat} interleaved repeats "
+          "(order rotated), one BLAS thread\n")
     print("| mode | median wall time [s] | min [s] | wall-time overhead vs no log | logging time inside the run "
           "[ms] | per step [µs] | direct overhead |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for mode, ts in times.items():
         med, ins = np.median(ts), np.median(inside[mode])
         print(f"| {mode} | {med:.3f} | {np.min(ts):.3f} | {100 * (med / base - 1):+.1f} % | {1e3 * ins:.1f} | "
-              f"{1e6 * ins / 1000:.1f} | {100 * ins / base:.1f} % |")
+              f"{1e6 * ins / sim.n_steps:.1f} | {100 * ins / base:.1f} % |")
 
 
 if __name__ == "__main__":
