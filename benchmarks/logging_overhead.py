@@ -3,9 +3,10 @@
 Runs the same closed loop without a log, with the per-step RunLogger (flush every simulated second), and with
 the LMPC's predicted horizon logged every 20 steps (the default) or 10 steps too (an extra exact rollout each
 time), interleaved, and prints the median wall times and their ratio.  Wall-time ratios between runs carry the
-machine's noise (a few % on a shared 2-core VM), so the cost of logging is also timed directly inside each run: the time spent in the
-logging callback, plus the exact rollouts the LMPC makes only to log its prediction (kexp.control.lmpc.rollout,
-wrapped here; in RTI mode nothing else calls it), as a share of the no-log run time.  One BLAS thread.
+machine's noise (a few % on a shared 2-core VM), so the cost of logging is also timed directly inside each
+run: the time spent in the logging callback, plus the exact rollouts the LMPC makes only to log its prediction
+(kexp.control.lmpc.rollout, wrapped here; in RTI mode nothing else calls it), as a share of the no-log run
+time.  One BLAS thread.
 
     python benchmarks/logging_overhead.py [--repeat 7]
 """
