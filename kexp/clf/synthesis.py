@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..errors import ConfigError, KexpError, require_number
 from .certificate import CertificateReport, check_certificate
@@ -144,6 +145,7 @@ def solve_lqr_x(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float
     return Pz, "riccati", float(np.trace(Px)), float("nan")
 
 
+@threadpool_limits.wrap(limits=1)   # one BLAS thread: P must not depend on the machine's core count
 def synthesize_clf(model, config: ClfConfig = ClfConfig(), *, law: str = "sontag", u_min=-5.0, u_max=5.0,
                    law_params: dict | None = None) -> Clf:
     """Solve the SDP (or the Riccati equation, ``method='lqr_x'``), then check the certificate of V = zᵀPz for

@@ -10,6 +10,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..data.dataset import Dataset
 from ..dictionary import Monomials
@@ -90,11 +91,13 @@ def _select(eig, residual, cfg: IdentifyConfig) -> np.ndarray:
     return np.sort(np.concatenate(blocks))
 
 
+@threadpool_limits.wrap(limits=1)   # one BLAS thread: the model must not depend on the machine's core count
 def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomials,
              config: IdentifyConfig = IdentifyConfig()) -> KoopmanBilinearModel:
     """Identify the bilinear Koopman model of ``system`` from the unforced ``dataset``.
 
-    F is used only through the data; G_i (the input fields) are taken from ``system`` for B_i, b_i.
+    F is used only through the data; G_i (the input fields) are taken from ``system`` for B_i, b_i.  BLAS runs on
+    one thread here, so the model is the same whatever OPENBLAS_NUM_THREADS is (tested).
     """
     if dataset.forced:
         raise DataError("identify() fits the drift from unforced data, but this dataset was collected under an "
