@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
+from threadpoolctl import threadpool_limits
 
 PREDICTION_STEPS = 100    # 1 s at Δ = 0.01 (the LMPC horizon): long enough to exercise B, short enough that
                           # an unstable spurious mode does not turn rounding into overflow
@@ -61,6 +62,7 @@ def prediction(model_msg: dict, z0, inputs) -> np.ndarray | None:
     return x_eq + np.asarray(out) @ C.T
 
 
+@threadpool_limits.wrap(limits=1)     # tiny products: BLAS threads only spin (design §2.11)
 def model_predictions(log_a, log_b) -> tuple[np.ndarray, np.ndarray] | None:
     """Both logs' models predicting from their own z(x0) (first /step message) under log a's first
     PREDICTION_STEPS inputs; None when either log has no model or no steps."""
