@@ -69,3 +69,44 @@ def test_results_table_reproduces_the_committed_table():
         with open(RESULTS / f"{name}.csv", newline="") as f:
             rows = list(csv.DictReader(f))
         assert len(rows) == 100 and sum(r["success"] == "True" for r in rows) >= 95
+
+
+USER_SYSTEM = '''
+from dataclasses import dataclass
+from typing import ClassVar
+from kexp.systems import VanDerPol
+
+@dataclass(frozen=True)
+class PolishVdp(VanDerPol):
+    name: ClassVar[str] = "polish_vdp"
+'''
+
+
+def test_theorem1_without_the_users_system_module_is_one_line(tmp_path, monkeypatch, capsys):
+    """A run of a user's system (system.name=module:Class); kexp-figures theorem1 from a shell where that module
+    is not importable: one line that names the module and PYTHONPATH, exit code 2 (was a traceback)."""
+    import sys
+    from kexp.analysis import figures
+    mod_dir = tmp_path / "mods"
+    mod_dir.mkdir()
+    (mod_dir / "kexp_polish_user_sys.py").write_text(USER_SYSTEM)
+    monkeypatch.syspath_prepend(str(mod_dir))
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[
+            *(o for o in SMALL if not o.startswith("controller.")), "controller=sontag",
+            "system.name=kexp_polish_user_sys:PolishVdp"])
+    run(cfg, tmp_path / "run", echo=lambda *_: None)
+    # the figure works while the module is importable ...
+    png, _ = theorem1_figure(tmp_path / "run", tmp_path / "ok.png", horizon=1.0)
+    assert png.stat().st_size > 10_000
+    # ... and fails in one line once it is not
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p != str(mod_dir)])
+    monkeypatch.delitem(sys.modules, "kexp_polish_user_sys")
+    with pytest.raises(SystemExit) as exc:
+        figures.main(["theorem1", str(tmp_path / "run"), "-o", str(tmp_path / "t1.png")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"kexp-figures: error: {tmp_path / 'run'}: cannot rebuild the run's system")
+    assert "'kexp_polish_user_sys'" in err[0] and "PYTHONPATH" in err[0]
+    assert not (tmp_path / "t1.png").exists()

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, read_log
 
 
@@ -109,7 +110,10 @@ def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) 
     log = read_log(run_dir / "run.mcap")
     model = KoopmanBilinearModel.load(run_dir / "model.npz")
     cfg = (log.one("/config") or {}).get("config") or {}
-    system = build_system(cfg["system"])
+    try:
+        system = build_system(cfg["system"])
+    except SystemDefinitionError as exc:  # a user's module (system.name=module:Class) not on PYTHONPATH here
+        raise SystemDefinitionError(f"{run_dir}: cannot rebuild the run's system: {exc}") from None
     steps = log.messages("/step")
     t, x, u = _arr(steps, "t"), _arr(steps, "x"), _arr(steps, "u")
     ctrl = cfg.get("controller") or {}
@@ -148,7 +152,7 @@ def main(argv=None) -> None:
             out, facts = theorem1_figure(args.source, args.out)
             print(f"ν = {facts['nu']:.4g}, l_x = {facts['l_x']:.4g}, max error/bound = "
                   f"{facts['max_ratio_error_to_bound']:.3g}")
-    except (LogError, OSError, KeyError) as exc:
+    except (KexpError, LogError, OSError, KeyError) as exc:  # e.g. the run's own system module not importable
         print(f"kexp-figures: error: {exc}", file=sys.stderr)
         sys.exit(2)
     print(f"wrote {out}")
