@@ -105,6 +105,9 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     assert proc.returncode == 2
     err = proc.stderr.strip().splitlines()
     assert err == ["kexp: error: data.dt=-0.1: the sampling time must be > 0"]
+    # the run folder keeps Hydra's config record but no empty main.log (hydra/job_logging: none)
+    assert (tmp_path / ".hydra" / "config.yaml").is_file() and (tmp_path / ".hydra" / "overrides.yaml").is_file()
+    assert not list(tmp_path.glob("*.log")) and (tmp_path / "summary.json").is_file()
 
 
 @pytest.mark.parametrize("override,needle", [
