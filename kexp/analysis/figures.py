@@ -68,7 +68,8 @@ def paper_figure(mcap: str | Path, out: str | Path) -> Path:
     else:
         ax[1].set_visible(False)
     cfg = (log.one("/config") or {}).get("config") or {}
-    fig.suptitle(f"{(cfg.get('system') or {}).get('name', '')}: open loop vs closed loop")
+    name = (cfg.get("system") or {}).get("name")  # a log written from Python may have no /config
+    fig.suptitle(f"{name}: open loop vs closed loop" if name else "open loop vs closed loop")
     fig.tight_layout()
     out = Path(out)
     fig.savefig(out, dpi=110)
