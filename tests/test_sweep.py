@@ -244,6 +244,8 @@ def test_a_broken_job_does_not_stop_the_sweep(tmp_path):
     assert runs["0"]["status"] == "error" and "sim.x0=[0.1, 0.2, 0.3]: give 2 finite numbers" in runs["0"]["message"]
     assert runs["1"]["status"] == "completed" and runs["1"]["completed"]
     assert "kexp: error: sim.x0=[0.1, 0.2, 0.3]" in proc.stderr
+    assert f"give 2 finite numbers (job #0: {sweep / '0'})" in proc.stderr  # which job, in the same line
+    assert [ln[:12] for ln in proc.stdout.splitlines() if not ln.startswith("[")] == ["#1 SUCCESS ("]
     rows = rep.aggregate(sweep)
     assert sorted(r["status"] for r in rows) == ["completed", "error"]
 

@@ -188,7 +188,7 @@ def _hydra_main(cfg: DictConfig) -> None:
         else:
             run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback
-        print(f"kexp: error: {exc}", file=sys.stderr)
+        print(f"kexp: error: {exc}" + (f" (job #{hc.job.num}: {out_dir})" if sweep_job else ""), file=sys.stderr)
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(json.dumps(
             {"status": "error", "completed": False, "message": str(exc), "error_type": type(exc).__name__},
