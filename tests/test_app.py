@@ -123,3 +123,21 @@ def test_bad_controller_settings_are_named(tmp_path, override, needle):
     cfg = _compose(SMALL + [override])
     with pytest.raises(ConfigError, match=re.escape(needle)):
         run(cfg, tmp_path, echo=lambda *_: None)
+
+
+def test_a_sweep_job_draws_no_progress_bar_on_a_terminal(tmp_path, monkeypatch):
+    """logging.progress=auto draws the bar when stderr is a terminal; a sweep job (auto_progress=False) does not:
+    parallel jobs share the terminal and their bars would overwrite each other."""
+    import io
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+    cfg = _compose([*(o for o in SMALL if not o.startswith("controller.")), "controller=sontag", "sim.T=0.5",
+                    "logging.rrd=false", "logging.mcap=false"])
+    assert cfg.logging.progress == "auto"
+    for auto, expect_bar in ((None, True), (False, False)):
+        err = Terminal()
+        monkeypatch.setattr(sys, "stderr", err)
+        run(cfg, tmp_path / str(auto), echo=lambda *_: None, auto_progress=auto)
+        assert ("closed loop [" in err.getvalue()) is expect_bar, err.getvalue()[-300:]

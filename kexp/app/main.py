@@ -58,10 +58,12 @@ def _to_dict(cfg: Any) -> dict:
     return dict(cfg)
 
 
-def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
+def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool | None = None) -> dict:
     """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
     data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
-    ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``."""
+    ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``.
+    ``echo`` receives the printed lines; ``auto_progress`` is what ``logging.progress=auto`` means (None: a bar
+    when stderr is a terminal; a sweep job passes False, its bars would overwrite each other)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -109,7 +111,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
         logger.log_model(model)
         logger.log_clf(clf, level_set_boundary(model, clf.lyap, clf.r), level_set_boundary(model, clf.lyap, clf.r_hat))
     bar = Progress(sim_cfg.n_steps, f"{system.name} closed loop",
-                   enabled=None if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
+                   enabled=auto_progress if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
 
     def on_step(rec, step):
         if logger is not None:
@@ -184,7 +186,8 @@ def _hydra_main(cfg: DictConfig) -> None:
     sweep_job = hc.mode == RunMode.MULTIRUN
     try:
         if sweep_job:  # one line per job (parallel jobs would interleave the model and CLF summaries)
-            print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only), out_dir), flush=True)
+            print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only, auto_progress=False),
+                           out_dir), flush=True)
         else:
             run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback
