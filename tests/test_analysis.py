@@ -69,3 +69,134 @@ def test_results_table_reproduces_the_committed_table():
         with open(RESULTS / f"{name}.csv", newline="") as f:
             rows = list(csv.DictReader(f))
         assert len(rows) == 100 and sum(r["success"] == "True" for r in rows) >= 95
+
+
+USER_SYSTEM = '''
+from dataclasses import dataclass
+from typing import ClassVar
+from kexp.systems import VanDerPol
+
+@dataclass(frozen=True)
+class PolishVdp(VanDerPol):
+    name: ClassVar[str] = "polish_vdp"
+'''
+
+
+def test_theorem1_without_the_users_system_module_is_one_line(tmp_path, monkeypatch, capsys):
+    """A run of a user's system (system.name=module:Class); kexp-figures theorem1 from a shell where that module
+    is not importable: one line that names the module and PYTHONPATH, exit code 2 (was a traceback)."""
+    import sys
+    from kexp.analysis import figures
+    mod_dir = tmp_path / "mods"
+    mod_dir.mkdir()
+    (mod_dir / "kexp_polish_user_sys.py").write_text(USER_SYSTEM)
+    monkeypatch.syspath_prepend(str(mod_dir))
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[
+            *(o for o in SMALL if not o.startswith("controller.")), "controller=sontag",
+            "system.name=kexp_polish_user_sys:PolishVdp"])
+    run(cfg, tmp_path / "run", echo=lambda *_: None)
+    # the figure works while the module is importable ...
+    png, _ = theorem1_figure(tmp_path / "run", tmp_path / "ok.png", horizon=1.0)
+    assert png.stat().st_size > 10_000
+    # ... and fails in one line once it is not
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p != str(mod_dir)])
+    monkeypatch.delitem(sys.modules, "kexp_polish_user_sys")
+    with pytest.raises(SystemExit) as exc:
+        figures.main(["theorem1", str(tmp_path / "run"), "-o", str(tmp_path / "t1.png")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"kexp-figures: error: {tmp_path / 'run'}: cannot rebuild the run's system")
+    assert "'kexp_polish_user_sys'" in err[0] and "PYTHONPATH" in err[0]
+    assert not (tmp_path / "t1.png").exists()
+
+
+# a 3-state system (the shipped `linear` with a triple integrator-like A), the cheap Sontag law, tiny settings
+LINEAR3 = ["system=linear", "system.params.A=[[0,1,0],[0,0,1],[-1,-2,-2]]", "system.params.B=[[0],[0],[1]]",
+           "controller=sontag", "data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=2", "sim.T=2.0",
+           "clf.grid=11", "logging.rrd=false", "sim.tol=0.5"]
+
+
+def _kexp() -> list[str]:
+    import shutil
+    import sys
+    exe = Path(sys.executable).parent / "kexp"
+    return [str(exe)] if exe.exists() else [shutil.which("kexp") or "kexp"]
+
+
+@pytest.fixture(scope="module")
+def sweep3(tmp_path_factory):
+    """3 jobs of a 3-state sweep: two initial conditions and a 2-component x0 (rejected: an error job)."""
+    import subprocess
+    sweep = tmp_path_factory.mktemp("linear3") / "sweep"
+    proc = subprocess.run(_kexp() + ["--multirun", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+                                     f"hydra.sweep.dir={sweep}", *LINEAR3,
+                                     "sim.x0=[0.5,0.5,0.5],[0.8,-0.5,0.2],[0.1,0.2]"],
+                          capture_output=True, text=True, timeout=300, cwd=sweep.parent)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return sweep
+
+
+def test_roa_of_a_3_state_sweep_draws_labelled_projections(sweep3, tmp_path, capsys):
+    import json
+    from kexp.analysis import figures
+    from kexp.analysis.roa import roa_figure
+    summaries = {p.parent.name: json.loads(p.read_text()) for p in sweep3.glob("*/summary.json")}
+    assert summaries["2"]["status"] == "error" and "give 3 finite numbers" in summaries["2"]["message"]
+    successes = sum(bool(s.get("metrics", {}).get("success")) for s in summaries.values())
+    png, facts = roa_figure(sweep3, tmp_path / "roa.png")
+    assert png.stat().st_size > 20_000
+    (g,) = facts["groups"]
+    assert g["label"] == "linear" and g["n"] == 3 and g["runs"] == 3 and g["drawn"] == 2
+    assert g["successes"] == successes
+    assert g["panels"] == [f"projection onto ({a}, {b}) of 3 states" for a, b in (("x1", "x2"), ("x1", "x3"),
+                                                                                   ("x2", "x3"))]
+    # the error job is listed with its reason, not dropped
+    assert [f["job"] for f in facts["failed"]] == ["2"] and "give 3 finite numbers" in facts["failed"][0]["reason"]
+    with pytest.raises(SystemExit) as exc:
+        figures.main(["roa", str(sweep3), "-o", str(tmp_path / "cli.png")])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert f"linear: n = 3, success {successes}/3 (1 without a usable x0, not drawn)" in out
+    assert "failed: 2 sim.x0=[0.1,0.2]: error: sim.x0=[0.1, 0.2]: give 3 finite numbers" in out
+
+
+def test_paper_figure_of_a_3_state_run_labels_its_projection(sweep3, tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+    titles = []
+    real_close = plt.close
+
+    def close_keeping_titles(fig):
+        titles.extend(ax.get_title() for ax in fig.axes if ax.get_visible())
+        real_close(fig)
+    monkeypatch.setattr(plt, "close", close_keeping_titles)
+    png = paper_figure(sweep3 / "0" / "run.mcap", tmp_path / "p.png")
+    assert png.stat().st_size > 20_000
+    assert titles == ["states over time", "phase portrait, projection onto (x1, x2) of 3 states"]
+
+
+def test_roa_of_a_mixed_folder_draws_one_row_per_group(sweep3, logged_runs, tmp_path):
+    """A folder holding a 3-state sweep and two single runs of other systems (Van der Pol, pendulum): three
+    groups, each in its own row of panels, never one scatter; too many groups: one line listing them."""
+    import shutil
+    from kexp.analysis.roa import RoaError, roa_figure
+    mixed = tmp_path / "mixed"
+    shutil.copytree(sweep3, mixed / "linear3")
+    for d in logged_runs:
+        shutil.copytree(d, mixed / d.name, ignore=shutil.ignore_patterns("*.npz"))
+    png, facts = roa_figure(mixed, tmp_path / "roa.png")
+    assert png.stat().st_size > 20_000
+    by = {g["label"]: g for g in facts["groups"]}
+    assert set(by) == {"vanderpol", "pendulum"} | {g["label"] for g in facts["groups"] if g["n"] == 3}
+    assert len(by) == 3
+    assert by["vanderpol"]["n"] == 2 and by["vanderpol"]["panels"] == ["success over initial conditions"]
+    assert by["vanderpol"]["runs"] == 1 and by["pendulum"]["runs"] == 1
+    (lin,) = [g for g in facts["groups"] if g["n"] == 3]
+    assert lin["runs"] == 3 and len(lin["panels"]) == 3 and lin["label"].startswith("system=linear")
+    assert len(facts["failed"]) == 1
+    with pytest.raises(RoaError) as exc:
+        roa_figure(mixed, tmp_path / "no.png", max_groups=2)
+    msg = str(exc.value)
+    assert "\n" not in msg and "3 groups of runs" in msg and "vanderpol (1 runs)" in msg and "pendulum" in msg
+    assert not (tmp_path / "no.png").exists()

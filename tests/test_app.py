@@ -105,6 +105,9 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     assert proc.returncode == 2
     err = proc.stderr.strip().splitlines()
     assert err == ["kexp: error: data.dt=-0.1: the sampling time must be > 0"]
+    # the run folder keeps Hydra's config record but no empty main.log (hydra/job_logging: none)
+    assert (tmp_path / ".hydra" / "config.yaml").is_file() and (tmp_path / ".hydra" / "overrides.yaml").is_file()
+    assert not list(tmp_path.glob("*.log")) and (tmp_path / "summary.json").is_file()
 
 
 @pytest.mark.parametrize("override,needle", [
@@ -120,3 +123,21 @@ def test_bad_controller_settings_are_named(tmp_path, override, needle):
     cfg = _compose(SMALL + [override])
     with pytest.raises(ConfigError, match=re.escape(needle)):
         run(cfg, tmp_path, echo=lambda *_: None)
+
+
+def test_a_sweep_job_draws_no_progress_bar_on_a_terminal(tmp_path, monkeypatch):
+    """logging.progress=auto draws the bar when stderr is a terminal; a sweep job (auto_progress=False) does not:
+    parallel jobs share the terminal and their bars would overwrite each other."""
+    import io
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+    cfg = _compose([*(o for o in SMALL if not o.startswith("controller.")), "controller=sontag", "sim.T=0.5",
+                    "logging.rrd=false", "logging.mcap=false"])
+    assert cfg.logging.progress == "auto"
+    for auto, expect_bar in ((None, True), (False, False)):
+        err = Terminal()
+        monkeypatch.setattr(sys, "stderr", err)
+        run(cfg, tmp_path / str(auto), echo=lambda *_: None, auto_progress=auto)
+        assert ("closed loop [" in err.getvalue()) is expect_bar, err.getvalue()[-300:]

@@ -50,6 +50,7 @@ def joblib_sweep(tmp_path_factory):
     wall = time.perf_counter() - t0
     assert proc.returncode == 0, proc.stderr[-3000:]
     print(f"2-job joblib sweep: {wall:.1f} s")
+    (base / "stdout.txt").write_text(proc.stdout)  # beside the sweep folder, for the test of what a job prints
     return sweep
 
 
@@ -69,6 +70,24 @@ def test_joblib_sweep_runs_both_initial_conditions(joblib_sweep):
     assert m0["max_abs_u"] <= 5.0 and m1["max_abs_u"] <= 5.0
     launcher = yaml.safe_load((joblib_sweep / "multirun.yaml").read_text())["hydra"]["launcher"]
     assert launcher["_target_"].endswith("JoblibLauncher") and launcher["n_jobs"] == 2
+
+
+@pytest.mark.slow
+def test_a_sweep_job_prints_one_line(joblib_sweep):
+    """Each job prints one result line (was ~31 lines of model and CLF summary, interleaved across jobs); Hydra's
+    own launch lines stay; no main.log in the job folders."""
+    lines = (joblib_sweep.parent / "stdout.txt").read_text().splitlines()
+    hydra = [ln for ln in lines if ln.startswith("[")]
+    jobs = sorted(ln for ln in lines if not ln.startswith("["))
+    assert len(hydra) == 4 and "Launching jobs" in hydra[1]  # Joblib.Parallel, Launching jobs, #0 :, #1 :
+    assert len(jobs) == 2, lines
+    runs = _summaries(joblib_sweep)
+    for num, line in enumerate(jobs):
+        m = runs[str(num)]["metrics"]
+        assert line.startswith(f"#{num} {'SUCCESS' if m['success'] else 'FAILED'} (completed): ")
+        assert f"J = {m['cost']:.4f}" in line and line.endswith(str(joblib_sweep / str(num)))
+    assert jobs[0].startswith("#0 SUCCESS") and jobs[1].startswith("#1 FAILED")
+    assert not list(joblib_sweep.glob("*/*.log")) and (joblib_sweep / "0" / ".hydra" / "config.yaml").is_file()
 
 
 @pytest.mark.slow
@@ -225,6 +244,8 @@ def test_a_broken_job_does_not_stop_the_sweep(tmp_path):
     assert runs["0"]["status"] == "error" and "sim.x0=[0.1, 0.2, 0.3]: give 2 finite numbers" in runs["0"]["message"]
     assert runs["1"]["status"] == "completed" and runs["1"]["completed"]
     assert "kexp: error: sim.x0=[0.1, 0.2, 0.3]" in proc.stderr
+    assert f"give 2 finite numbers (job #0: {sweep / '0'})" in proc.stderr  # which job, in the same line
+    assert [ln[:12] for ln in proc.stdout.splitlines() if not ln.startswith("[")] == ["#1 SUCCESS ("]
     rows = rep.aggregate(sweep)
     assert sorted(r["status"] for r in rows) == ["completed", "error"]
 

@@ -2,7 +2,8 @@
 
 - ``paper_figure``: open-loop versus closed-loop trajectories, states over time and the phase portrait, like the
   paper's Figures 2 and 3;
-- ``roa_figure``: success over a grid/sample of initial conditions with Ω_r and Ω_r̂ drawn in x-space;
+- ``roa_figure`` (kexp/analysis/roa.py): success over a grid/sample of initial conditions with Ω_r and Ω_r̂ drawn
+  in x-space, one row of panels per group of runs, projections onto state pairs for n > 2;
 - ``theorem1_figure``: the Theorem 1 bound beside the measured prediction error.
 
     kexp-figures paper RUN.mcap -o fig.png
@@ -17,7 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, read_log
+from .roa import roa_figure  # noqa: F401  (kexp-figures roa; re-exported)
 
 
 def _plt():
@@ -45,7 +48,7 @@ def paper_figure(mcap: str | Path, out: str | Path) -> Path:
     ax[0].set_xlabel("t [s]")
     ax[0].set_title("states over time")
     ax[0].legend(fontsize=8)
-    if x.shape[1] == 2:
+    if x.shape[1] >= 2:  # n > 2: the projection onto the first two states, and the title says so
         if ol:
             xo = _arr(ol, "x")
             ax[1].plot(xo[:, 0], xo[:, 1], "--", color="gray", label="open loop")
@@ -59,39 +62,14 @@ def paper_figure(mcap: str | Path, out: str | Path) -> Path:
                 ax[1].plot(b[:, 0], b[:, 1], style, lw=1, label="Ω_r" if key == "boundary_r" else "Ω_r̂")
         ax[1].set_xlabel(names[0])
         ax[1].set_ylabel(names[1])
-        ax[1].set_title("phase portrait")
+        ax[1].set_title("phase portrait" if x.shape[1] == 2 else
+                        f"phase portrait, projection onto ({names[0]}, {names[1]}) of {x.shape[1]} states")
         ax[1].legend(fontsize=8)
+    else:
+        ax[1].set_visible(False)
     cfg = (log.one("/config") or {}).get("config") or {}
-    fig.suptitle(f"{(cfg.get('system') or {}).get('name', '')}: open loop vs closed loop")
-    fig.tight_layout()
-    out = Path(out)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
-
-
-def roa_figure(sweep: str | Path, out: str | Path) -> Path:
-    from ..app.report import aggregate
-    rows = aggregate(sweep)
-    pts = [(r["x0"], r["success"]) for r in rows if r["x0"] and len(r["x0"]) == 2]
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.5, 5))
-    for ok, color, label in ((True, "tab:green", "success"), (False, "tab:red", "no success")):
-        p = np.array([x for x, s in pts if bool(s) == ok]).reshape(-1, 2)
-        if p.size:
-            ax.scatter(p[:, 0], p[:, 1], s=14, c=color, label=f"{label} ({len(p)})")
-    mcap = next((Path(r["path"]) / "run.mcap" for r in rows if (Path(r["path"]) / "run.mcap").exists()), None)
-    if mcap is not None:
-        clf = read_log(mcap).one("/clf") or {}
-        for key, style, label in (("boundary_r", "k-", "Ω_r"), ("boundary_r_hat", "k:", "Ω_r̂")):
-            b = np.asarray(clf.get(key) or [], float)
-            if b.size:
-                b = np.vstack([b, b[:1]])
-                ax.plot(b[:, 0], b[:, 1], style, lw=1, label=label)
-    ax.set_xlabel("x1(0)")
-    ax.set_ylabel("x2(0)")
-    ax.set_title(f"success over initial conditions ({sum(bool(s) for _, s in pts)}/{len(pts)})")
-    ax.legend(fontsize=8)
+    name = (cfg.get("system") or {}).get("name")  # a log written from Python may have no /config
+    fig.suptitle(f"{name}: open loop vs closed loop" if name else "open loop vs closed loop")
     fig.tight_layout()
     out = Path(out)
     fig.savefig(out, dpi=110)
@@ -109,7 +87,10 @@ def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) 
     log = read_log(run_dir / "run.mcap")
     model = KoopmanBilinearModel.load(run_dir / "model.npz")
     cfg = (log.one("/config") or {}).get("config") or {}
-    system = build_system(cfg["system"])
+    try:
+        system = build_system(cfg["system"])
+    except SystemDefinitionError as exc:  # a user's module (system.name=module:Class) not on PYTHONPATH here
+        raise SystemDefinitionError(f"{run_dir}: cannot rebuild the run's system: {exc}") from None
     steps = log.messages("/step")
     t, x, u = _arr(steps, "t"), _arr(steps, "x"), _arr(steps, "u")
     ctrl = cfg.get("controller") or {}
@@ -143,12 +124,20 @@ def main(argv=None) -> None:
         if args.kind == "paper":
             out = paper_figure(args.source, args.out)
         elif args.kind == "roa":
-            out = roa_figure(args.source, args.out)
+            out, facts = roa_figure(args.source, args.out)
+            for g in facts["groups"]:
+                print(f"{g['label']}: n = {g['n']}, success {g['successes']}/{g['runs']}"
+                      + (f" ({g['runs'] - g['drawn']} without a usable x0, not drawn)" if g["drawn"] < g["runs"]
+                         else ""))
+            for f in facts["failed"][:20]:
+                print(f"  failed: {f['job']} {f['overrides']}: {f['reason']}")
+            if len(facts["failed"]) > 20:
+                print(f"  ... and {len(facts['failed']) - 20} more (kexp-report lists them all)")
         else:
             out, facts = theorem1_figure(args.source, args.out)
             print(f"ν = {facts['nu']:.4g}, l_x = {facts['l_x']:.4g}, max error/bound = "
                   f"{facts['max_ratio_error_to_bound']:.3g}")
-    except (LogError, OSError, KeyError) as exc:
+    except (KexpError, LogError, OSError, KeyError) as exc:  # e.g. the run's own system module not importable
         print(f"kexp-figures: error: {exc}", file=sys.stderr)
         sys.exit(2)
     print(f"wrote {out}")

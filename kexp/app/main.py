@@ -58,10 +58,12 @@ def _to_dict(cfg: Any) -> dict:
     return dict(cfg)
 
 
-def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
+def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool | None = None) -> dict:
     """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
     data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
-    ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``."""
+    ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``.
+    ``echo`` receives the printed lines; ``auto_progress`` is what ``logging.progress=auto`` means (None: a bar
+    when stderr is a terminal; a sweep job passes False, its bars would overwrite each other)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -109,7 +111,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
         logger.log_model(model)
         logger.log_clf(clf, level_set_boundary(model, clf.lyap, clf.r), level_set_boundary(model, clf.lyap, clf.r_hat))
     bar = Progress(sim_cfg.n_steps, f"{system.name} closed loop",
-                   enabled=None if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
+                   enabled=auto_progress if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
 
     def on_step(rec, step):
         if logger is not None:
@@ -181,16 +183,37 @@ def _hydra_main(cfg: DictConfig) -> None:
     from hydra.types import RunMode
     hc = HydraConfig.get()
     out_dir = Path(hc.runtime.output_dir)
+    sweep_job = hc.mode == RunMode.MULTIRUN
     try:
-        run(cfg, out_dir)
+        if sweep_job:  # one line per job (parallel jobs would interleave the model and CLF summaries)
+            print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only, auto_progress=False),
+                           out_dir), flush=True)
+        else:
+            run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback
-        print(f"kexp: error: {exc}", file=sys.stderr)
+        print(f"kexp: error: {exc}" + (f" (job #{hc.job.num}: {out_dir})" if sweep_job else ""), file=sys.stderr)
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "summary.json").write_text(json.dumps(
             {"status": "error", "completed": False, "message": str(exc), "error_type": type(exc).__name__},
             indent=2))
-        if hc.mode != RunMode.MULTIRUN:
+        if not sweep_job:
             sys.exit(2)  # a single run: exit code 2; in a sweep the other jobs go on, the report counts this one
+
+
+def _warnings_only(line: str) -> None:
+    if line.startswith("warning:"):
+        print(line, flush=True)
+
+
+def job_line(num: int, metrics: dict, out_dir: Path) -> str:
+    """The one line a sweep job prints: its number (as in Hydra's "#0 : overrides" launch line), the verdict and
+    the main metrics of ``run``'s result (``metrics``), and its folder ``out_dir``."""
+    m = metrics["metrics"]
+    settle = m.get("settling_time")
+    settle = "inf" if settle is None or not np.isfinite(settle) else f"{settle:.2f} s"
+    return (f"#{num} {'SUCCESS' if m['success'] else 'FAILED'} ({metrics['status']}): ‖x(T)‖ = "
+            f"{m['final_error']:.2e}, J = {m['cost']:.4f}, settling {settle}, max|u| = {m['max_abs_u']:.3f}, "
+            f"fallbacks {m['fallbacks']}, solve median {m['solve_time_median'] * 1e3:.2f} ms; {out_dir}")
 
 
 def composition_error_line(exc: BaseException) -> str:

@@ -437,9 +437,11 @@ def write_pictures(rows: list[dict], groups: list[dict], out_dir: Path) -> dict[
                         pts.append((r["x0"][0], r["x0"][1] if len(r["x0"]) > 1 else 0.0))
                 if pts:
                     ax.scatter(*zip(*pts), label=name, s=36, **style)
-            ax.set_title(lab if len(lab) < 60 else lab[:57] + "...", fontsize=9)
-            ax.set_xlabel("x0[0]")
-            ax.set_ylabel("x0[1]")
+            n = max(len(r["x0"]) for r in by_group[lab] if r["x0"])
+            note = f"\nprojection onto (x1, x2) of {n} states" if n > 2 else ""  # say so: not the whole x0
+            ax.set_title((lab if len(lab) < 60 else lab[:57] + "...") + note, fontsize=9)
+            ax.set_xlabel("x1(0)")
+            ax.set_ylabel("x2(0)")
             ax.grid(True, alpha=0.3)
             ax.set_aspect("equal", adjustable="datalim")
             ax.legend(fontsize=8)

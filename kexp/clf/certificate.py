@@ -19,6 +19,12 @@ import numpy as np
 
 @dataclass(frozen=True)
 class CertificateReport:
+    """The result of :func:`check_certificate` (frozen): Proposition 1's verdict and Finsler margin
+    (``global_holds``, ``global_margin`` < 0 holds, the multipliers ``global_mu`` (m,)), what the sampled states
+    of the region show (fractions in [0, 1], the decay rate V̇/V in 1/s) and the levels ``r`` ≥ ``r_hat`` > 0 of
+    Ω_r and Ω_r̂.  ``verdict`` is one sentence, ``lines()`` the printed summary, ``to_dict()`` a JSON-ready dict
+    (with the verdict; ``global_mu`` as a list)."""
+
     global_holds: bool
     global_margin: float          # min_μ λ_max(Q_Λ + Σμ_i Q_Bi) / ‖Q_Λ‖ (< 0: holds)
     global_mu: tuple[float, ...]
@@ -101,6 +107,12 @@ def region_grid(x_eq: np.ndarray, low, high, grid: int, seed: int = 0) -> tuple[
 
 
 def check_certificate(model, lyap, law, config) -> CertificateReport:
+    """Check V = zᵀPz (``lyap``, a :class:`~kexp.clf.QuadraticLyapunov`) for the identified ``model`` and the
+    explicit law ``law`` (z (M, k) -> u (M, m)): Proposition 1 by a small SDP (CLARABEL), then the model's own V̇
+    under ``law`` on a grid of ``config.grid`` points per axis over the box ``config.region_low`` ..
+    ``region_high`` around x_eq (20000 uniform points for n > 3), and the levels r and r̂ (see the module text).
+    ``config`` is a :class:`~kexp.clf.ClfConfig`.  Returns a :class:`CertificateReport`; never raises on a failed
+    certificate (it is a verdict, not an error)."""
     margin, mu = finsler_margin(lyap)
     x, boundary = region_grid(model.x_eq, config.region_low, config.region_high, config.grid)
     radius = np.max(np.abs(np.asarray(config.region_high, dtype=float) - np.asarray(config.region_low, dtype=float)))

@@ -14,6 +14,13 @@ from ..errors import ConfigError
 
 @dataclass(frozen=True, eq=False)
 class QuadraticLyapunov:
+    """V(z) = zᵀPz for a model with k eigen-coordinates and m inputs, with its Lie derivatives precomputed:
+    ``P`` (k, k) symmetric positive definite, ``Q_lam`` = PΛ + ΛᵀP (k, k), ``Q_b`` = PB_i + B_iᵀP (m, k, k) and
+    ``q_b`` = 2Pb_i (m, k), all read-only.  Build it with :meth:`from_model` (which raises
+    :class:`~kexp.errors.ConfigError` for a P of the wrong shape, not finite, not symmetric or not positive
+    definite).  ``value(z)`` (..., k) -> (...,), ``gradient(z)`` -> (..., k), ``lie(z)`` -> (L_ΛV (...,),
+    L_BV (..., m)) so that V̇ = L_ΛV + L_BV·u."""
+
     P: np.ndarray
     Q_lam: np.ndarray   # (k, k)  PΛ + ΛᵀP
     Q_b: np.ndarray     # (m, k, k)  PB_i + B_iᵀP

@@ -97,6 +97,10 @@ class Clf:
 
 
 def solve_sdp(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float]:
+    """The paper's SDP (eq. 40) for P (k, k): minimise σ − γ·tr(P ΣB_i) subject to PΛ + ΛᵀP ⪯ σI and
+    c_lower·I ⪯ P ⪯ c_upper·I, with ``config.solver``.  Returns (P symmetric (k, k), solver status, objective, σ).
+    Raises :class:`~kexp.clf.ClfError` when the solver fails, the status is not optimal (optimal_inaccurate only
+    with ``config.accept_inaccurate``) or P's eigenvalues leave [c_lower, c_upper]."""
     import cvxpy as cp
     k = model.k
     P = cp.Variable((k, k), symmetric=True)
@@ -175,6 +179,10 @@ def save_clf(clf: Clf, path) -> None:
 
 
 def load_clf(path, model, config: ClfConfig) -> Clf:
+    """Read a CLF written by :func:`save_clf` (an .npz without pickle) for ``model`` (the model it was synthesised
+    for: its Λ, B, b give the Lie derivatives; P must be (k, k)) and attach ``config``.  Returns a :class:`Clf`
+    with the stored status, solver facts and certificate report (not re-checked).  Raises OSError / KeyError for a
+    missing or foreign file and :class:`~kexp.errors.ConfigError` if P does not fit the model."""
     import json
     with np.load(path, allow_pickle=False) as f:
         P = f["P"]

@@ -27,6 +27,11 @@ def _bounds(u_min, u_max, m):
 
 @dataclass(frozen=True, eq=False)
 class Sontag:
+    """Sontag's formula (paper eq. 19) on V = zᵀPz (``lyap``), saturated to [``u_min``, ``u_max``] (scalars or
+    (m,), broadcast and stored as read-only (m,) arrays).  ``law(z)``: z (..., k) -> u (..., m), finite and within
+    the bounds; ``unsaturated(z)`` the formula before the clip (0 where |L_BV|² ≤ ``eps``·max(1, |L_ΛV|)).
+    Raises :class:`~kexp.errors.ConfigError` unless u_min < u_max, both finite."""
+
     lyap: QuadraticLyapunov
     u_min: np.ndarray
     u_max: np.ndarray
@@ -54,6 +59,10 @@ class Sontag:
 
 @dataclass(frozen=True, eq=False)
 class LieGain:
+    """h(z) = −k·L_BV(z) on V = zᵀPz (``lyap``), saturated to [``u_min``, ``u_max``] (the paper's pendulum law;
+    no decay guarantee).  ``law(z)``: z (..., k) -> u (..., m), finite and within the bounds.  Raises
+    :class:`~kexp.errors.ConfigError` for a gain ``k`` that is not finite and > 0 or bounds not u_min < u_max."""
+
     lyap: QuadraticLyapunov
     u_min: np.ndarray
     u_max: np.ndarray
@@ -78,6 +87,10 @@ LAWS = {"sontag": Sontag, "lie_gain": LieGain}
 
 
 def make_law(name: str, lyap: QuadraticLyapunov, u_min, u_max, **params):
+    """The explicit law ``name`` ('sontag' or 'lie_gain', see :data:`LAWS`) on ``lyap`` with input bounds
+    ``u_min``, ``u_max`` (scalars or (m,)) and the law's own keyword ``params`` (``eps`` for sontag, ``k`` for
+    lie_gain).  Returns a callable z (..., k) -> u (..., m).  Raises :class:`~kexp.errors.ConfigError` for an
+    unknown name or bad parameters."""
     if name not in LAWS:
         raise ConfigError(f"explicit law {name!r} is unknown; valid: {sorted(LAWS)}")
     try:

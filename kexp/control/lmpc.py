@@ -31,6 +31,13 @@ STATE_COSTS = ("z", "x")
 
 @dataclass(frozen=True)
 class LmpcConfig:
+    """Settings of :class:`Lmpc` (frozen; checked on construction, :class:`~kexp.errors.ConfigError` naming the
+    ``lmpc.<key>`` otherwise): ``horizon`` Np steps of the model's Δ; weights ``w`` > 0 on the state (on z, or on
+    x = Cz with ``state_cost='x'``) and ``r`` > 0 on u; ``terminal`` w_T ≥ 0 on V(z_Np); move blocking with
+    ``free_moves`` single-step moves then ``blocks`` blocks in all (``blocks=None``: no blocking); ``max_iter``
+    SQP iterations per step (1: real-time iteration) stopping at step size ``tol``; ``slack_weight`` ρ of the
+    softened (21e); ``use_21e`` / ``use_21f`` switch those constraints; ``qp_eps``, ``qp_max_iter`` for PIQP."""
+
     horizon: int = 100
     w: float = 1.0
     r: float = 1.0

@@ -44,6 +44,14 @@ class DataReport:
 
 @dataclass(frozen=True)
 class Dataset:
+    """Sampled trajectories of one system (frozen, arrays read-only), what :func:`~kexp.data.collect` returns:
+    ``t`` (T+1,) sample times, ``x`` (n_traj, T+1, n) states, ``valid`` (n_traj, T+1) bool (False: masked by the
+    region filter or not finite), ``dt`` the sampling time, ``pair_rule`` 'next' (x_k, x_{k+1}) or 'euler'
+    (x_k, x_k + F(x_k)·dt, needs ``fx`` (n_traj, T+1, n)), ``u`` (n_traj, T, m) the held inputs of a forced
+    collection (None: unforced), ``report`` what collection dropped and why.  ``iter_pairs`` yields snapshot
+    pairs in bounded memory.  Raises :class:`~kexp.errors.DataError` / ConfigError for inconsistent shapes or an
+    unknown pair rule."""
+
     t: np.ndarray
     x: np.ndarray
     valid: np.ndarray

@@ -114,6 +114,10 @@ SAMPLERS = {"circle": Circle, "box": Box, "points": Points}
 
 
 def make_sampler(kind: str, **params):
+    """The initial-condition sampler ``kind`` ('circle', 'box' or 'points', see :data:`SAMPLERS`) built from its
+    keyword ``params`` (e.g. ``make_sampler("box", n_traj=100, low=-2.0, high=2.0)``); its ``sample(center,
+    seed)`` returns (n_traj, n) initial states.  Raises :class:`~kexp.errors.ConfigError` for an unknown kind or
+    bad parameters."""
     if kind not in SAMPLERS:
         raise ConfigError(f"unknown sampler {kind!r}; valid: {sorted(SAMPLERS)}")
     try:

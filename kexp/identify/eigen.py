@@ -24,7 +24,9 @@ class IdentificationError(KexpError, ValueError):
 
 
 class IdentificationWarning(UserWarning):
-    pass
+    """Identification went on but the model deserves a look: K is near-defective (ill-determined
+    eigenfunctions), real eigenvalues ≤ 0 of K were dropped, or no eigenfunction is constant although the
+    dictionary has a constant.  The same notes are kept in the model's report (``warnings``)."""
 
 
 @dataclass(frozen=True)

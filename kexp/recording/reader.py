@@ -16,6 +16,11 @@ class LogError(KexpError, OSError):
 
 @dataclass
 class RunLog:
+    """A run log read into memory by :func:`read_log`: ``channels`` maps a topic (e.g. '/step') to its
+    (log_time_ns, message dict) pairs in log-time order; ``truncated`` and ``warning`` say whether the file was
+    cut short.  ``messages(topic)`` -> the message dicts ([] for an absent topic), ``one(topic)`` -> the first
+    (or None), ``completed`` -> the run wrote its final /summary with ``completed`` true."""
+
     path: Path
     channels: dict = field(default_factory=dict)   # topic -> list of (log_time_ns, message dict)
     truncated: bool = False

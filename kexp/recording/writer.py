@@ -18,6 +18,14 @@ def _ns(t: float) -> int:
 
 
 class RunLogger:
+    """Writes one run's MCAP log at ``path`` (parent folders created, an existing file replaced): every channel of
+    :data:`~kexp.recording.schema.CHANNELS` registered with its JSON schema, messages time-stamped with simulation
+    time, zstd chunks flushed every ``flush_every`` simulated seconds; ``/prediction`` every ``prediction_every``
+    steps (0: never).  Call the typed helpers (``log_config``, ``log_model``, ``log_clf``, ``log_step`` from
+    ``closed_loop``'s ``on_step``, ``log_open_loop``, ``log_summary``, ``log_run_info``) or ``write``, then
+    ``close()`` — or use it as a context manager (see the README's Python API).  Writing to an unknown topic
+    raises KeyError; a file that cannot be opened raises OSError."""
+
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)

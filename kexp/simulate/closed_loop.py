@@ -16,6 +16,11 @@ from ..errors import ConfigError, require_number
 
 @dataclass(frozen=True)
 class SimConfig:
+    """Closed-loop settings (frozen): horizon ``T`` and control step ``dt`` in seconds (0 < dt ≤ T; ``n_steps`` =
+    round(T/dt) sample-and-hold steps), ``tol`` > 0 the success radius around x_eq, ``r`` the input weight of
+    the reported cost, ``diverge_bound`` the ‖x − x_eq‖ where a run stops as diverged, ``integrator`` the ODE
+    solver options of each step.  Raises :class:`~kexp.errors.ConfigError` for values outside those ranges."""
+
     T: float = 10.0
     dt: float = 0.01
     tol: float = 1e-2            # success: ‖x(T) − x_eq‖ < tol
@@ -62,6 +67,12 @@ class StepRecord:
 
 @dataclass(frozen=True)
 class RunMetrics:
+    """What a closed loop achieved (frozen): ``success`` (all steps run and ‖x(T) − x_eq‖ < tol),
+    ``final_error`` = ‖x(T) − x_eq‖, ``cost`` J = ∫ ‖x − x_eq‖² + r‖u‖² dt, ``settling_time`` in s (inf if
+    never), ``max_abs_u``, ``time_outside_omega_r`` in s, ``fallbacks`` (steps where the controller fell back to
+    h), and wall-clock solve times per step in s (median, p95, p99, max; these vary between repeats).
+    ``to_dict()`` gives a plain dict."""
+
     success: bool
     final_error: float
     cost: float
@@ -81,6 +92,11 @@ class RunMetrics:
 
 @dataclass(frozen=True)
 class RunResult:
+    """What :func:`closed_loop` returns (frozen): ``status`` 'completed' or 'diverged' with its ``message``
+    ('' when completed), ``t`` (K+1,), ``x`` (K+1, n), ``u`` (K, m) for the K steps run (fewer than n_steps if
+    diverged), one :class:`StepRecord` per step in ``records``, the :class:`RunMetrics`, and ``open_loop``
+    (n_steps+1, n) the unforced trajectory from x0 when asked for (None otherwise, or if it failed)."""
+
     status: str              # 'completed' or 'diverged'
     message: str
     t: np.ndarray

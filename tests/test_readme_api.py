@@ -1,0 +1,47 @@
+"""The README's "Python API" section runs as written: its python blocks are executed in order in one namespace,
+with only the sizes made small (each substitution must hit the README text exactly as often as stated, so an edit
+of the snippet that the test no longer matches fails here instead of going untested)."""
+import re
+from pathlib import Path
+
+import pytest
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+# README text -> small setting, and how many times the text occurs in the section
+SMALL = [("Circle(100, 2.5)", "Circle(20, 2.5)", 1),
+         ("DataConfig(T=10.0, dt=0.01)", "DataConfig(T=3.0, dt=0.01)", 1),
+         ("Monomials(2, 5)", "Monomials(2, 3)", 1),
+         ("ClfConfig(gamma=2.0, c_lower=0.01, c_upper=1.0)", "ClfConfig(gamma=2.0, c_lower=0.01, c_upper=1.0, grid=11)",
+          1),
+         ("LmpcConfig()", "LmpcConfig(horizon=20, blocks=None)", 2),
+         ("SimConfig(T=10.0)", "SimConfig(T=1.0)", 2)]
+
+
+def python_api_blocks() -> list[str]:
+    text = README.read_text()
+    section = text.split("\n## Python API\n", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"```python\n(.*?)```", section, flags=re.S)
+
+
+def test_the_python_api_section_runs_as_written(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("rerun")
+    blocks = python_api_blocks()
+    assert len(blocks) == 2 and "RunLogger(path)" in blocks[1]
+    code = "\n".join(blocks)
+    for old, new, count in SMALL:
+        assert code.count(old) == count, f"README Python API: {old!r} occurs {code.count(old)} times, not {count}"
+        code = code.replace(old, new)
+    monkeypatch.chdir(tmp_path)
+    ns: dict = {}
+    exec(compile(code, "README.md (Python API)", "exec"), ns)
+    out = capsys.readouterr().out
+    assert "logs are equal" in out and "100 control steps logged" in out
+    from kexp.recording import read_log
+    log = read_log(tmp_path / "a.mcap")
+    assert not log.warning and not log.truncated and log.completed
+    assert len(log.messages("/step")) == 100 and len(log.messages("/open_loop")) == 101
+    assert log.one("/model")["n"] == 2 and len(log.one("/clf")["boundary_r"]) > 0
+    summary = log.one("/summary")
+    assert summary["status"] == "completed" and 0 < summary["metrics"]["cost"] < 10
+    assert callable(ns["logged_closed_loop"])
+    assert (tmp_path / "a.png").stat().st_size > 20_000 and (tmp_path / "a.rrd").stat().st_size > 10_000
