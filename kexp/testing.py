@@ -29,6 +29,7 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
 def pytest_addoption(parser):
+    """pytest hook: the ``--kexp-regen`` flag and the ``kexp_golden_dir`` / ``kexp_golden_policy`` ini options."""
     group = parser.getgroup("kexp", "kexp golden run logs")
     group.addoption("--kexp-regen", action="store_true", default=False,
                     help="rewrite the golden run logs that kexp_golden.check() compares against (the tests fail)")
