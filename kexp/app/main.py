@@ -171,8 +171,17 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     return metrics
 
 
-# conf/ lives at the top of the repository (the package is installed in editable mode, see README)
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+def _conf_dir() -> str:
+    """The Hydra configs: ``kexp/conf`` inside an installed wheel (pyproject.toml maps the repository's ``conf/``
+    there), else ``conf/`` at the top of the checkout (an editable install or PYTHONPATH)."""
+    package = Path(__file__).resolve().parents[1]
+    for candidate in (package / "conf", package.parent / "conf"):
+        if (candidate / "config.yaml").is_file():
+            return str(candidate)
+    return str(package.parent / "conf")  # Hydra's error names it
+
+
+CONF_DIR = _conf_dir()
 
 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
@@ -268,6 +277,10 @@ def _precheck_sweep(argv: list[str]) -> None:
 
 
 def main() -> None:
+    if sys.argv[1:] == ["--version"]:  # Hydra's own --version prints Hydra's
+        from .. import __version__
+        print(f"kexp {__version__}")
+        return
     _precheck(sys.argv[1:])
     _hydra_main()
 
