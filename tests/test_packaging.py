@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import kexp
+from kexp.app.lock import _normalise, lock_info, pins
 from kexp.recording import read_log
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,6 +50,33 @@ def test_version_falls_back_to_pyproject_when_not_installed(monkeypatch):
         raise md.PackageNotFoundError(name)
     monkeypatch.setattr(md, "version", missing)
     assert kexp._version() == PYPROJECT["project"]["version"]
+
+
+def test_lock_info_hashes_the_lock_and_names_the_pins_that_differ(tmp_path):
+    import hashlib
+    import importlib.metadata as md
+    numpy = md.version("numpy")
+    lock = tmp_path / "requirements.lock"
+    lock.write_text(f"numpy=={numpy} \\\n    --hash=sha256:00\n    # via kexp\nPyYAML==0.0.1\n")
+    assert pins(lock.read_text()) == {"numpy": numpy, "pyyaml": "0.0.1"}
+    info = lock_info(lock)
+    assert info.sha256 == hashlib.sha256(lock.read_bytes()).hexdigest() and info.matches is False
+    assert info.note == f"1 of 2 pins differ: pyyaml 0.0.1 locked, {md.version('pyyaml')} installed"
+    lock.write_text(f"numpy=={numpy}\n")
+    assert lock_info(lock).matches is True and lock_info(lock).note == ""
+    none = lock_info(tmp_path / "absent.lock")
+    assert (none.sha256, none.matches) == (None, None) and "no absent.lock" in none.note
+
+
+def test_the_repositorys_lock_pins_every_dependency_exactly():
+    """requirements.lock (uv pip compile, with hashes) pins each dependency and test extra of pyproject.toml."""
+    text = (REPO / "requirements.lock").read_text()
+    pinned = pins(text)
+    wanted = PYPROJECT["project"]["dependencies"] + PYPROJECT["project"]["optional-dependencies"]["test"]
+    names = {_normalise(w.split(">")[0].split("<")[0].split("=")[0].split("[")[0].strip())
+             for w in wanted}
+    assert names <= set(pinned), sorted(names - set(pinned))
+    assert len(pinned) > len(names) and text.count("--hash=sha256:") >= len(pinned)
 
 
 def _no_pythonpath_env() -> dict:
@@ -100,4 +128,7 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp
     assert summary["metrics"]["final_error"] < 0.5 * float(np.linalg.norm(summary["x0"]))
     log = read_log(summary_path.parent / "run.mcap")
     assert log.completed and len(log.messages("/step")) == 100
+    # an installed wheel has no lock beside it: recorded as unknown, with the reason
+    assert summary["lock"]["sha256"] is None and summary["lock"]["matches"] is None
+    assert "no requirements.lock" in summary["lock"]["note"]
     assert summary["versions"]["kexp"] == kexp.__version__

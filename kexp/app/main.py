@@ -25,6 +25,7 @@ from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
                     build_identification, build_logging, build_sim, build_system, check_data_budget)
 from .cache import Cache, key_of
+from .lock import lock_info
 from .progress import Progress
 from .schema import register as _register_schema
 
@@ -127,13 +128,14 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
     timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
     versions = _versions()
+    lock = lock_info().to_dict()
     files = {"model": model_path.name}
     if logger is not None:
         if result.open_loop is not None:
             logger.log_open_loop(np.arange(len(result.open_loop)) * sim_cfg.dt, result.open_loop)
         t_end = float(result.t[-1])
         logger.log_summary(t_end, result.status, result.message, deterministic, completed=True)
-        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0})
+        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock)
         logger.close()
         files["mcap"] = logger.path.name
         if log_cfg["rrd"]:
@@ -157,6 +159,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
                   "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
         "versions": versions,
+        "lock": lock,
         "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
         "wall_time_s": time.perf_counter() - t0,
         "files": files,
