@@ -25,6 +25,7 @@ from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
                     build_identification, build_logging, build_sim, build_system, check_data_budget)
 from .cache import Cache, key_of
+from .lock import lock_info
 from .progress import Progress
 from .schema import register as _register_schema
 
@@ -129,13 +130,14 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
     timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
     versions = _versions()
+    lock = lock_info().to_dict()
     files = {"model": model_path.name}
     if logger is not None:
         if result.open_loop is not None:
             logger.log_open_loop(np.arange(len(result.open_loop)) * sim_cfg.dt, result.open_loop)
         t_end = float(result.t[-1])
         logger.log_summary(t_end, result.status, result.message, deterministic, completed=True)
-        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0})
+        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock)
         logger.close()
         files["mcap"] = logger.path.name
         if log_cfg["rrd"]:
@@ -159,6 +161,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
                   "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
         "versions": versions,
+        "lock": lock,
         "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
         "wall_time_s": time.perf_counter() - t0,
         "files": files,
@@ -173,8 +176,17 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     return metrics
 
 
-# conf/ lives at the top of the repository (the package is installed in editable mode, see README)
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+def _conf_dir() -> str:
+    """The Hydra configs: ``kexp/conf`` inside an installed wheel (pyproject.toml maps the repository's ``conf/``
+    there), else ``conf/`` at the top of the checkout (an editable install or PYTHONPATH)."""
+    package = Path(__file__).resolve().parents[1]
+    for candidate in (package / "conf", package.parent / "conf"):
+        if (candidate / "config.yaml").is_file():
+            return str(candidate)
+    return str(package.parent / "conf")  # Hydra's error names it
+
+
+CONF_DIR = _conf_dir()
 
 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
@@ -291,6 +303,10 @@ def _precheck_sweep(argv: list[str]) -> None:
 
 
 def main() -> None:
+    if sys.argv[1:] == ["--version"]:  # Hydra's own --version prints Hydra's
+        from .. import __version__
+        print(f"kexp {__version__}")
+        return
     _precheck(sys.argv[1:])
     _hydra_main()
 

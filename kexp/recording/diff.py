@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import ConfigError
 from . import behaviour
 from .policy import POLICIES, ChannelRule, Policy, make_policy
+from .provenance import version_warnings
 from .reader import LogError, RunLog, read_log
 from .schema import CHANNELS, WALL_CLOCK_CHANNELS, WALL_CLOCK_FIELDS
 
@@ -226,7 +227,7 @@ def diff_logs(a: RunLog | str | Path, b: RunLog | str | Path, *, atol: float = 0
     pol = policy if isinstance(policy, Policy) else make_policy(policy, rtol=rtol, atol=atol)
     la = a if isinstance(a, RunLog) else read_log(a)
     lb = b if isinstance(b, RunLog) else read_log(b)
-    warnings = tuple(w for w in (la.warning, lb.warning) if w)
+    warnings = tuple(w for w in (la.warning, lb.warning) if w) + tuple(version_warnings(la, lb))
     ignore_ch = () if include_wall_clock else WALL_CLOCK_CHANNELS
     ignore_fields = () if include_wall_clock else WALL_CLOCK_FIELDS
     order = {name: i for i, name in enumerate(CHANNELS)}

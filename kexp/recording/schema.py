@@ -41,7 +41,8 @@ CHANNELS: dict[str, dict] = {
                  "properties": {"status": {"type": "string"}, "message": {"type": "string"},
                                 "metrics": {"type": "object"}, "completed": {"type": "boolean"}}},
     "/run_info": {"title": "kexp.RunInfo", "type": "object",
-                  "properties": {"versions": {"type": "object"}, "timing": {"type": "object"}}},
+                  "properties": {"versions": {"type": "object"}, "timing": {"type": "object"},
+                                 "lock": {"type": ["object", "null"]}}},
 }
 
 WALL_CLOCK_CHANNELS = ("/timing", "/run_info")

@@ -97,8 +97,8 @@ class RunLogger:
         self.write("/summary", t, {"status": status, "message": message, "metrics": metrics,
                                    "completed": completed})
 
-    def log_run_info(self, t: float, versions: dict, timing: dict) -> None:
-        self.write("/run_info", t, {"versions": versions, "timing": timing})
+    def log_run_info(self, t: float, versions: dict, timing: dict, lock: dict | None = None) -> None:
+        self.write("/run_info", t, {"versions": versions, "timing": timing, "lock": lock})
 
     def close(self) -> None:
         if not self._closed:
