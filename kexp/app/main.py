@@ -24,7 +24,7 @@ from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
                     build_identification, build_logging, build_sim, build_system, check_data_budget)
-from .cache import Cache, key_of
+from .cache import Cache, clf_key, model_key
 from .progress import Progress
 from .schema import register as _register_schema
 
@@ -86,15 +86,13 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
         dataset = collect(system, sampler, data_cfg)
         return identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
 
-    ident_parts = [cfg_dict.get(k) for k in ("system", "data", "dictionary", "identification")]
-    model_key = key_of("model", FORMAT_VERSION, *ident_parts)
-    model = cache.get_or_create(f"model-{model_key}.npz", identify_now, lambda m, p: m.save(p),
+    mkey = model_key(cfg_dict, FORMAT_VERSION)
+    model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
                                 KoopmanBilinearModel.load)
     model_path = model.save(out_dir / "model.npz")
     echo(model.summary())
-    clf_key = key_of("clf", model_key, cfg_dict.get("clf"), spec.law, spec.law_params, spec.u_min, spec.u_max)
     clf = cache.get_or_create(
-        f"clf-{clf_key}.npz",
+        f"clf-{clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max)}.npz",
         lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
                                law_params=spec.law_params),
         save_clf, lambda p: load_clf(p, model, clf_cfg))
