@@ -6,7 +6,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from kexp.app.cache import MODEL_GROUPS, clf_key, model_key
-from kexp.app.main import CONF_DIR, _to_dict, run
+from kexp.app.main import CONF_DIR, config_dict, run
 from kexp.app.schema import KexpConfig
 from kexp.identify import FORMAT_VERSION
 
@@ -30,7 +30,7 @@ def _cfg(overrides=()):
 
 
 def _key(overrides=()):
-    return model_key(_to_dict(_cfg(overrides)), FORMAT_VERSION)
+    return model_key(config_dict(_cfg(overrides)), FORMAT_VERSION)
 
 
 def test_every_group_is_classified():
@@ -51,14 +51,14 @@ def test_other_settings_hit_the_model_cache(group, override):
 
 
 def test_clf_key_follows_the_model_the_clf_group_and_the_input_bounds():
-    base = _to_dict(_cfg())
+    base = config_dict(_cfg())
     key = clf_key("m", base, "sontag", {}, -5.0, 5.0)
     assert clf_key("m", base, "sontag", {}, -5.0, 5.0) == key
     assert clf_key("other", base, "sontag", {}, -5.0, 5.0) != key
-    assert clf_key("m", _to_dict(_cfg(["clf.grid=21"])), "sontag", {}, -5.0, 5.0) != key
+    assert clf_key("m", config_dict(_cfg(["clf.grid=21"])), "sontag", {}, -5.0, 5.0) != key
     assert clf_key("m", base, "lie_gain", {}, -5.0, 5.0) != key
     assert clf_key("m", base, "sontag", {}, -5.0, 4.0) != key
-    assert clf_key("m", _to_dict(_cfg(["controller.lmpc.horizon=30", "sim.T=2.0"])), "sontag", {}, -5.0, 5.0) == key
+    assert clf_key("m", config_dict(_cfg(["controller.lmpc.horizon=30", "sim.T=2.0"])), "sontag", {}, -5.0, 5.0) == key
 
 
 def test_runs_report_hits_and_misses_under_the_model_key(tmp_path):
@@ -70,7 +70,7 @@ def test_runs_report_hits_and_misses_under_the_model_key(tmp_path):
         cfg = _cfg(common + overrides)
         run(cfg, tmp_path / name, echo=lambda *_: None)
         cache = json.loads((tmp_path / name / "summary.json").read_text())["cache"]
-        return cache, f"model-{model_key(_to_dict(cfg), FORMAT_VERSION)}.npz"
+        return cache, f"model-{model_key(config_dict(cfg), FORMAT_VERSION)}.npz"
 
     first, name = go("a", [])
     assert first["hits"] == [] and len(first["misses"]) == 2 and first["misses"][0] == name

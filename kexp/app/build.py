@@ -65,14 +65,30 @@ def construct(cls, mapping: Mapping[str, Any] | None, where: str, **overrides):
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def build_system(cfg: Mapping[str, Any]):
+def system_settings(cfg: Mapping[str, Any]) -> dict:
+    """``{"name", "params"}``: the system and the parameters that apply to it.
+
+    A system group file's parameters belong to the system that file names; the file records both as ``origin``.
+    If ``system.name`` is then changed to another system (on the command line or in a preset), the parameters
+    still as that file gave them are dropped, so the new class starts from its own defaults plus the parameters
+    set after the file (``+system.params={...}``, ``system.params.x=...``, a preset's ``system.params``)."""
     cfg = dict(_plain(cfg))
-    unknown = set(cfg) - {"name", "params"}
+    unknown = set(cfg) - {"name", "params", "origin"}
     if unknown:
-        raise ConfigError(f"system.{sorted(unknown)[0]}: unknown key; valid keys: ['name', 'params']")
-    if "name" not in cfg:
+        raise ConfigError(f"system.{sorted(unknown)[0]}: unknown key; valid keys: ['name', 'origin', 'params']")
+    if not cfg.get("name"):
         raise ConfigError("system.name is missing; e.g. system=vanderpol")
-    return make_system(cfg["name"], cfg.get("params") or {})
+    params = dict(cfg.get("params") or {})
+    origin = cfg.get("origin") or {}
+    if origin and origin.get("name") != cfg["name"]:
+        given = origin.get("params") or {}
+        params = {k: v for k, v in params.items() if k not in given or given[k] != v}
+    return {"name": cfg["name"], "params": params}
+
+
+def build_system(cfg: Mapping[str, Any]):
+    settings = system_settings(cfg)
+    return make_system(settings["name"], settings["params"])
 
 
 def build_data(cfg: Mapping[str, Any]):

@@ -23,7 +23,8 @@ from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
-                    build_identification, build_logging, build_sim, build_system, check_data_budget)
+                    build_identification, build_logging, build_sim, build_system, check_data_budget,
+                    system_settings)
 from .cache import Cache, clf_key, model_key
 from .progress import Progress
 from .schema import register as _register_schema
@@ -58,6 +59,15 @@ def _to_dict(cfg: Any) -> dict:
     return dict(cfg)
 
 
+def config_dict(cfg: Any) -> dict:
+    """The composed config as plain data, as logged, hashed and keyed: without ``hydra``, and with the system's
+    params those that apply to ``system.name`` (:func:`~kexp.app.build.system_settings`)."""
+    out = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    if "system" in out:
+        out["system"] = system_settings(out["system"])
+    return out
+
+
 def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
     data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
@@ -65,10 +75,10 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    cfg_dict = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    cfg_dict = config_dict(cfg)
     chash = config_hash(cfg_dict)
     # every config section is validated before the long computations start
-    system = build_system(cfg["system"])
+    system = build_system(cfg_dict["system"])
     sampler, data_cfg = build_data(cfg["data"])
     ident_cfg = build_identification(cfg["identification"])
     clf_cfg = build_clf(cfg["clf"])
@@ -220,17 +230,53 @@ def _precheck(argv: list[str]) -> None:
     several lines and exits 1)."""
     if any(a in ("-m", "--multirun") for a in argv):
         return _precheck_sweep(argv)
+    argv, config_dirs = _split_config_dirs(argv)
     if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
         return
+    if config_dirs and not any(a.startswith("hydra.searchpath=") for a in argv):
+        # --config-dir D: Hydra puts D before kexp's conf/ on the search path; the same for this check
+        argv = argv + [f"hydra.searchpath=[{','.join('file://' + d for d in config_dirs)}]"]
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
+    from yaml import YAMLError
     try:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
             compose(config_name="config", overrides=argv)
+    except YAMLError as exc:  # a preset or group file that is not YAML
+        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
+        sys.exit(2)
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
         print(f"kexp: error: {composition_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
+
+
+def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(argv without ``--config-dir D`` / ``--config-dir=D`` / ``-cd D``, the absolute directories D)."""
+    import os
+    rest, dirs, i = [], [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a in ("--config-dir", "-cd") and i + 1 < len(argv):
+            dirs.append(os.path.abspath(argv[i + 1]))
+            i += 2
+            continue
+        if a.startswith("--config-dir="):
+            dirs.append(os.path.abspath(a.split("=", 1)[1]))
+        else:
+            rest.append(a)
+        i += 1
+    return rest, dirs
+
+
+def yaml_error_line(exc: BaseException) -> str:
+    """One line for a config file that does not parse, e.g. "/home/me/conf/experiment/mine.yaml: not valid YAML:
+    expected ',' or ']', but got ':' (line 2, column 6)"."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+    name = getattr(mark, "name", None) or "a config file"
+    return f"{name}: not valid YAML: {problem}{where}"
 
 
 def _precheck_sweep(argv: list[str]) -> None:
