@@ -208,6 +208,22 @@ def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_eve
     return LqrController(system, spec.u_min, spec.u_max, q=spec.q, r=spec.r, clf=clf)
 
 
+def dictionary_size(cfg: Mapping[str, Any], n: int) -> int:
+    """The number of dictionary functions, known before any data (``scale: auto`` does not change it): an upper
+    bound of the model's k."""
+    cfg = dict(_plain(cfg))
+    if cfg.get("scale") == "auto":
+        cfg["scale"] = None
+    return build_dictionary(cfg, n).size
+
+
+def check_memory_budget(spec: ControllerSpec, k: int, m: int) -> None:
+    """An LMPC horizon whose memory exceeds the budget: refuse before identification (kexp.control.lmpc)."""
+    if spec.kind == "lmpc":
+        from ..control.lmpc import check_memory
+        check_memory(spec.lmpc, k, m)
+
+
 def check_data_budget(sampler, data_cfg, ident_cfg, dictionary_size: int) -> None:
     """Too few samples for the dictionary: refuse before collecting anything."""
     n_train = sampler.n_traj - max(1 if ident_cfg.holdout > 0 and sampler.n_traj >= 2 else 0,

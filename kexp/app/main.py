@@ -24,7 +24,7 @@ from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
                     build_identification, build_logging, build_sim, build_system, check_data_budget,
-                    system_settings)
+                    check_memory_budget, dictionary_size, system_settings)
 from .cache import Cache, clf_key, model_key
 from .progress import Progress
 from .schema import register as _register_schema
@@ -87,8 +87,9 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print) -> dict:
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
     cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))
-    if cfg["dictionary"].get("scale") != "auto":
-        check_data_budget(sampler, data_cfg, ident_cfg, build_dictionary(cfg["dictionary"], system.n, None).size)
+    k_max = dictionary_size(cfg["dictionary"], system.n)
+    check_data_budget(sampler, data_cfg, ident_cfg, k_max)
+    check_memory_budget(spec, k_max, system.m)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
 
