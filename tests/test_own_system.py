@@ -114,6 +114,10 @@ def test_a_user_preset_in_an_outside_config_dir_runs(tmp_path):
     (["-cd", "myconf", "+experiment=broken"], "experiment/broken.yaml: not valid YAML: expected ',' or ']'"),
     (["+experiment=broken", "hydra.searchpath=[file://myconf]"], "not valid YAML"),
     (["-cd", "myconf", "+experiment=mine", "system.params.alpha=abc"], "drift(x) raised UFuncTypeError"),
+    # sweeps: a file that is not YAML, a swept value of the wrong type, with a config dir of one's own
+    (["-m", "-cd", "myconf", "+experiment=broken", "sim.T=1.0,2.0"], "experiment/broken.yaml: not valid YAML"),
+    (["-m", "--config-dir", "myconf", "+experiment=mine", "sim.T=1.0,abc"],
+     "sim.T: Value 'abc' of type 'str' could not be converted to Float"),
 ])
 def test_errors_with_an_outside_config_dir_are_one_line_exit_2(tmp_path, args, fragment):
     _user_folder(tmp_path)

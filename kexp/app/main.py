@@ -229,14 +229,14 @@ def _precheck(argv: list[str]) -> None:
     """For a single run: compose the config first, so an unknown group option, preset or key, a value of the wrong
     type (the schema, kexp/app/schema.py) or a bad override is one line and exit code 2 (Hydra itself prints
     several lines and exits 1)."""
-    if any(a in ("-m", "--multirun") for a in argv):
-        return _precheck_sweep(argv)
     argv, config_dirs = _split_config_dirs(argv)
-    if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
-        return
     if config_dirs and not any(a.startswith("hydra.searchpath=") for a in argv):
         # --config-dir D: Hydra puts D before kexp's conf/ on the search path; the same for this check
         argv = argv + [f"hydra.searchpath=[{','.join('file://' + d for d in config_dirs)}]"]
+    if any(a in ("-m", "--multirun") for a in argv):
+        return _precheck_sweep(argv)
+    if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
+        return
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
@@ -293,6 +293,8 @@ def _precheck_sweep(argv: list[str]) -> None:
         overrides = OverridesParser.create().parse_overrides([a for a in argv if not a.startswith("-")])
     except HydraException:
         return  # a syntax error: Hydra's own message names it
+    _precheck_files([a for a, ov in zip([a for a in argv if not a.startswith("-")], overrides)
+                     if not ov.is_sweep_override()])
     from .schema import filled
     schema = filled(_register_schema())
     for ov in overrides:
@@ -310,6 +312,21 @@ def _precheck_sweep(argv: list[str]) -> None:
                 wrapped.__cause__ = exc
                 print(f"kexp: error: {composition_error_line(wrapped)}", file=sys.stderr)
                 sys.exit(2)
+
+
+def _precheck_files(overrides: list[str]) -> None:
+    """A preset or group file that is not YAML stops a sweep with a traceback: compose once with the overrides
+    that are not sweeps and report only that, in one line, exit code 2 (anything else is left to Hydra)."""
+    from hydra import compose, initialize_config_dir
+    from yaml import YAMLError
+    try:
+        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+            compose(config_name="config", overrides=overrides)
+    except YAMLError as exc:
+        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
+        sys.exit(2)
+    except Exception:  # noqa: BLE001 - Hydra composes every job and reports the rest
+        return
 
 
 def main() -> None:
