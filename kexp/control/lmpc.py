@@ -66,7 +66,7 @@ class LmpcConfig:
         block_sizes(self.horizon, self.free_moves, self.blocks)  # validates the blocking
 
 
-MEMORY_BUDGET_GB = 4.0  # the default budget of check_memory; the environment variable KEXP_MEMORY_BUDGET_GB sets another
+MEMORY_BUDGET_GB = 4.0  # the default budget of check_memory; the environment variable KEXP_MEMORY_BUDGET_GB sets it
 
 
 def memory_estimate(config: LmpcConfig, k: int, m: int) -> int:
@@ -97,10 +97,10 @@ def check_memory(config: LmpcConfig, k: int, m: int) -> None:
     """Refuse a horizon and blocking whose LMPC would need more than the memory budget (before anything runs)."""
     need, budget = memory_estimate(config, k, m), memory_budget()
     if need > budget:
+        blocks = "null" if config.blocks is None else config.blocks
         raise ConfigError(
-            f"controller.lmpc.horizon={config.horizon} with blocks={'null' if config.blocks is None else config.blocks} "
-            f"needs about {need / 1e9:.3g} GB for k={k} dictionary functions and m={m} input(s), over the budget of "
-            f"{budget / 1e9:.3g} GB "
+            f"controller.lmpc.horizon={config.horizon} with blocks={blocks} needs about {need / 1e9:.3g} GB for "
+            f"k={k} dictionary functions and m={m} input(s), over the budget of {budget / 1e9:.3g} GB "
             "(KEXP_MEMORY_BUDGET_GB): lower the horizon or controller.lmpc.blocks, or raise the budget")
 
 
