@@ -99,12 +99,21 @@ def _user_folder(tmp_path: Path) -> Path:
     return conf
 
 
-def test_a_user_preset_in_an_outside_config_dir_runs(tmp_path):
-    _user_folder(tmp_path)
-    proc = _kexp(["--config-dir", "myconf", "+experiment=mine", *SMALL, f"hydra.run.dir={tmp_path / 'run'}"],
-                 tmp_path)
+def test_the_readme_config_folder_of_ones_own_runs_as_written(tmp_path):
+    """README's myconf/system/duffing2.yaml and myconf/experiment/mine.yaml, and its --config-dir command."""
+    (tmp_path / "my_systems.py").write_text(_readme_module())
+    for block in re.findall(r"```yaml\n(.*?)```", _readme_section(), re.S):
+        path = tmp_path / re.search(r"^# (myconf/\S+\.yaml)", block, re.M).group(1)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(block)
+    assert (tmp_path / "myconf" / "system" / "duffing2.yaml").exists()
+    line = next(ln for ln in _readme_section().splitlines() if ln.startswith("PYTHONPATH=. kexp --config-dir"))
+    argv = shlex.split(line.split("#")[0])[2:]
+    proc = _kexp(argv + SMALL + [f"hydra.run.dir={tmp_path / 'run'}"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert _logged_system(tmp_path / "run") == {"name": "my_systems:Duffing2", "params": {"alpha": 2.0}}
+    config = read_log(tmp_path / "run" / "run.mcap").one("/config")["config"]
+    assert config["data"]["sampler"]["kind"] == "box" and config["clf"]["method"] == "lqr_x"  # the preset applied
 
 
 @pytest.mark.parametrize("args,fragment", [
