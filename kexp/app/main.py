@@ -230,8 +230,10 @@ def _precheck(argv: list[str]) -> None:
     type (the schema, kexp/app/schema.py) or a bad override is one line and exit code 2 (Hydra itself prints
     several lines and exits 1)."""
     argv, config_dirs = _split_config_dirs(argv)
-    if config_dirs and not any(a.startswith("hydra.searchpath=") for a in argv):
-        # --config-dir D: Hydra puts D before kexp's conf/ on the search path; the same for this check
+    if config_dirs:
+        if any(a.startswith(("hydra.searchpath=", "+hydra.searchpath=")) for a in argv):
+            return  # both: leave it to Hydra
+        # --config-dir D: Hydra adds D to the search path (after kexp's conf/); the same for this check
         argv = argv + [f"hydra.searchpath=[{','.join('file://' + d for d in config_dirs)}]"]
     if any(a in ("-m", "--multirun") for a in argv):
         return _precheck_sweep(argv)
