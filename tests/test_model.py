@@ -46,6 +46,21 @@ def test_load_errors_say_what_to_do(tmp_path, vdp_model):
         KoopmanBilinearModel.load(old)
 
 
+def test_truncated_or_corrupt_model_file_is_a_model_file_error(tmp_path, vdp_model):
+    """A file cut short (a killed copy, a full disk) or with a flipped byte: ModelFileError, not BadZipFile."""
+    data = vdp_model.save(tmp_path / "m.npz").read_bytes()
+    cut = tmp_path / "cut.npz"
+    for n in (1, 4, 30, len(data) // 3, len(data) // 2, len(data) - 22, len(data) - 1):  # 4: the zip magic 'PK..'
+        cut.write_bytes(data[:n])
+        with pytest.raises(ModelFileError, match="is not a readable kexp model .*re-run identification"):
+            KoopmanBilinearModel.load(cut)
+    # a flipped byte inside the first array's data: the zip's CRC check fails
+    first = data.index(b"\x93NUMPY") + 200
+    cut.write_bytes(data[:first] + bytes([data[first] ^ 0xFF]) + data[first + 1:])
+    with pytest.raises(ModelFileError, match="Bad CRC-32"):
+        KoopmanBilinearModel.load(cut)
+
+
 def test_model_is_frozen(vdp_model):
     with pytest.raises(ValueError):
         vdp_model.Lambda[0, 0] = 1.0

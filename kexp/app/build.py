@@ -65,14 +65,30 @@ def construct(cls, mapping: Mapping[str, Any] | None, where: str, **overrides):
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def build_system(cfg: Mapping[str, Any]):
+def system_settings(cfg: Mapping[str, Any]) -> dict:
+    """``{"name", "params"}``: the system and the parameters that apply to it.
+
+    A system group file's parameters belong to the system that file names; the file records both as ``origin``.
+    If ``system.name`` is then changed to another system (on the command line or in a preset), the parameters
+    still as that file gave them are dropped, so the new class starts from its own defaults plus the parameters
+    set after the file (``+system.params={...}``, ``system.params.x=...``, a preset's ``system.params``)."""
     cfg = dict(_plain(cfg))
-    unknown = set(cfg) - {"name", "params"}
+    unknown = set(cfg) - {"name", "params", "origin"}
     if unknown:
-        raise ConfigError(f"system.{sorted(unknown)[0]}: unknown key; valid keys: ['name', 'params']")
-    if "name" not in cfg:
+        raise ConfigError(f"system.{sorted(unknown)[0]}: unknown key; valid keys: ['name', 'origin', 'params']")
+    if not cfg.get("name"):
         raise ConfigError("system.name is missing; e.g. system=vanderpol")
-    return make_system(cfg["name"], cfg.get("params") or {})
+    params = dict(cfg.get("params") or {})
+    origin = cfg.get("origin") or {}
+    if origin and origin.get("name") != cfg["name"]:
+        given = origin.get("params") or {}
+        params = {k: v for k, v in params.items() if k not in given or given[k] != v}
+    return {"name": cfg["name"], "params": params}
+
+
+def build_system(cfg: Mapping[str, Any]):
+    settings = system_settings(cfg)
+    return make_system(settings["name"], settings["params"])
 
 
 def build_data(cfg: Mapping[str, Any]):
@@ -190,6 +206,22 @@ def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_eve
         return NmpcOracle(system, None, spec.u_min, spec.u_max, horizon_steps=spec.horizon, dt=model.dt, q=spec.q,
                           r=spec.r, terminal="lqr", clf=clf, law=law)
     return LqrController(system, spec.u_min, spec.u_max, q=spec.q, r=spec.r, clf=clf)
+
+
+def dictionary_size(cfg: Mapping[str, Any], n: int) -> int:
+    """The number of dictionary functions, known before any data (``scale: auto`` does not change it): an upper
+    bound of the model's k."""
+    cfg = dict(_plain(cfg))
+    if cfg.get("scale") == "auto":
+        cfg["scale"] = None
+    return build_dictionary(cfg, n).size
+
+
+def check_memory_budget(spec: ControllerSpec, k: int, m: int) -> None:
+    """An LMPC horizon whose memory exceeds the budget: refuse before identification (kexp.control.lmpc)."""
+    if spec.kind == "lmpc":
+        from ..control.lmpc import check_memory
+        check_memory(spec.lmpc, k, m)
 
 
 def check_data_budget(sampler, data_cfg, ident_cfg, dictionary_size: int) -> None:

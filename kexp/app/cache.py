@@ -27,6 +27,22 @@ def key_of(*parts) -> str:
     return hashlib.sha256(json.dumps(plain(list(parts)), sort_keys=True).encode()).hexdigest()[:20]
 
 
+# the config groups that determine the identified model; every other group (clf, controller, sim, logging,
+# cache) must leave its key unchanged, so that a sweep over them identifies once (tests/test_cache.py)
+MODEL_GROUPS = ("system", "data", "dictionary", "identification")
+
+
+def model_key(cfg: dict, format_version: int) -> str:
+    """The cache key of the model identified from the composed config ``cfg`` (a plain mapping)."""
+    return key_of("model", format_version, *(cfg.get(group) for group in MODEL_GROUPS))
+
+
+def clf_key(model: str, cfg: dict, law: str, law_params, u_min, u_max) -> str:
+    """The cache key of the CLF synthesised for the model with key ``model``: the clf group and the controller
+    settings the synthesis uses (law, its parameters and the input bounds)."""
+    return key_of("clf", model, cfg.get("clf"), law, law_params, u_min, u_max)
+
+
 @contextmanager
 def _locked(path: Path):
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -23,8 +23,9 @@ from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
-                    build_identification, build_logging, build_sim, build_system, check_data_budget)
-from .cache import Cache, key_of
+                    build_identification, build_logging, build_sim, build_system, check_data_budget,
+                    check_memory_budget, dictionary_size, system_settings)
+from .cache import Cache, clf_key, model_key
 from .lock import lock_info
 from .progress import Progress
 from .schema import register as _register_schema
@@ -59,6 +60,15 @@ def _to_dict(cfg: Any) -> dict:
     return dict(cfg)
 
 
+def config_dict(cfg: Any) -> dict:
+    """The composed config as plain data, as logged, hashed and keyed: without ``hydra``, and with the system's
+    params those that apply to ``system.name`` (:func:`~kexp.app.build.system_settings`)."""
+    out = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    if "system" in out:
+        out["system"] = system_settings(out["system"])
+    return out
+
+
 def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool | None = None) -> dict:
     """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
     data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
@@ -68,10 +78,10 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    cfg_dict = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    cfg_dict = config_dict(cfg)
     chash = config_hash(cfg_dict)
     # every config section is validated before the long computations start
-    system = build_system(cfg["system"])
+    system = build_system(cfg_dict["system"])
     sampler, data_cfg = build_data(cfg["data"])
     ident_cfg = build_identification(cfg["identification"])
     clf_cfg = build_clf(cfg["clf"])
@@ -80,8 +90,9 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
     cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))
-    if cfg["dictionary"].get("scale") != "auto":
-        check_data_budget(sampler, data_cfg, ident_cfg, build_dictionary(cfg["dictionary"], system.n, None).size)
+    k_max = dictionary_size(cfg["dictionary"], system.n)
+    check_data_budget(sampler, data_cfg, ident_cfg, k_max)
+    check_memory_budget(spec, k_max, system.m)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
 
@@ -89,15 +100,13 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         dataset = collect(system, sampler, data_cfg)
         return identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
 
-    ident_parts = [cfg_dict.get(k) for k in ("system", "data", "dictionary", "identification")]
-    model_key = key_of("model", FORMAT_VERSION, *ident_parts)
-    model = cache.get_or_create(f"model-{model_key}.npz", identify_now, lambda m, p: m.save(p),
+    mkey = model_key(cfg_dict, FORMAT_VERSION)
+    model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
                                 KoopmanBilinearModel.load)
     model_path = model.save(out_dir / "model.npz")
     echo(model.summary())
-    clf_key = key_of("clf", model_key, cfg_dict.get("clf"), spec.law, spec.law_params, spec.u_min, spec.u_max)
     clf = cache.get_or_create(
-        f"clf-{clf_key}.npz",
+        f"clf-{clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max)}.npz",
         lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
                                law_params=spec.law_params),
         save_clf, lambda p: load_clf(p, model, clf_cfg))
@@ -255,6 +264,12 @@ def _precheck(argv: list[str]) -> None:
     """For a single run: compose the config first, so an unknown group option, preset or key, a value of the wrong
     type (the schema, kexp/app/schema.py) or a bad override is one line and exit code 2 (Hydra itself prints
     several lines and exits 1)."""
+    argv, config_dirs = _split_config_dirs(argv)
+    if config_dirs:
+        if any(a.startswith(("hydra.searchpath=", "+hydra.searchpath=")) for a in argv):
+            return  # both: leave it to Hydra
+        # --config-dir D: Hydra adds D to the search path (after kexp's conf/); the same for this check
+        argv = argv + [f"hydra.searchpath=[{','.join('file://' + d for d in config_dirs)}]"]
     if any(a in ("-m", "--multirun") for a in argv):
         return _precheck_sweep(argv)
     if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
@@ -262,12 +277,44 @@ def _precheck(argv: list[str]) -> None:
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
+    from yaml import YAMLError
     try:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
             compose(config_name="config", overrides=argv)
+    except YAMLError as exc:  # a preset or group file that is not YAML
+        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
+        sys.exit(2)
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
         print(f"kexp: error: {composition_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
+
+
+def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(argv without ``--config-dir D`` / ``--config-dir=D`` / ``-cd D``, the absolute directories D)."""
+    import os
+    rest, dirs, i = [], [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a in ("--config-dir", "-cd") and i + 1 < len(argv):
+            dirs.append(os.path.abspath(argv[i + 1]))
+            i += 2
+            continue
+        if a.startswith("--config-dir="):
+            dirs.append(os.path.abspath(a.split("=", 1)[1]))
+        else:
+            rest.append(a)
+        i += 1
+    return rest, dirs
+
+
+def yaml_error_line(exc: BaseException) -> str:
+    """One line for a config file that does not parse, e.g. "/home/me/conf/experiment/mine.yaml: not valid YAML:
+    expected ',' or ']', but got ':' (line 2, column 6)"."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+    name = getattr(mark, "name", None) or "a config file"
+    return f"{name}: not valid YAML: {problem}{where}"
 
 
 def _precheck_sweep(argv: list[str]) -> None:
@@ -283,6 +330,8 @@ def _precheck_sweep(argv: list[str]) -> None:
         overrides = OverridesParser.create().parse_overrides([a for a in argv if not a.startswith("-")])
     except HydraException:
         return  # a syntax error: Hydra's own message names it
+    _precheck_files([a for a, ov in zip([a for a in argv if not a.startswith("-")], overrides)
+                     if not ov.is_sweep_override()])
     from .schema import filled
     schema = filled(_register_schema())
     for ov in overrides:
@@ -300,6 +349,21 @@ def _precheck_sweep(argv: list[str]) -> None:
                 wrapped.__cause__ = exc
                 print(f"kexp: error: {composition_error_line(wrapped)}", file=sys.stderr)
                 sys.exit(2)
+
+
+def _precheck_files(overrides: list[str]) -> None:
+    """A preset or group file that is not YAML stops a sweep with a traceback: compose once with the overrides
+    that are not sweeps and report only that, in one line, exit code 2 (anything else is left to Hydra)."""
+    from hydra import compose, initialize_config_dir
+    from yaml import YAMLError
+    try:
+        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+            compose(config_name="config", overrides=overrides)
+    except YAMLError as exc:
+        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
+        sys.exit(2)
+    except Exception:  # noqa: BLE001 - Hydra composes every job and reports the rest
+        return
 
 
 def main() -> None:

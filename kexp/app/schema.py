@@ -72,8 +72,11 @@ def derive(cls: type, *, exclude: tuple[str, ...] = (), extra: tuple = ()) -> ty
 
 @dataclass
 class SystemSchema:
+    """A system group file sets name, params and origin (the name and params as the file gives them): with another
+    system.name, the file's params are dropped (kexp.app.build.system_settings).  params=null: the defaults."""
     name: str = OC_MISSING            # a built-in system (see kexp.systems) or "module:Class"
-    params: Dict[str, Any] = field(default_factory=dict)
+    params: Optional[Dict[str, Any]] = field(default_factory=dict)
+    origin: Optional[Dict[str, Any]] = None
 
 
 @dataclass

@@ -8,6 +8,7 @@ Saved as one ``.npz`` holding arrays plus a JSON ``meta`` string (no pickle), wi
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -196,7 +197,7 @@ class KoopmanBilinearModel:
             with np.load(path, allow_pickle=False) as f:
                 meta = json.loads(str(f["meta"]))
                 arrays = {a: f[a] for a in _ARRAYS}
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, ValueError, KeyError, EOFError, NotImplementedError, zipfile.BadZipFile) as exc:  # corrupt
             raise ModelFileError(f"model file {path} is not a readable kexp model ({type(exc).__name__}: {exc}); "
                                  "re-run identification to recreate it") from None
         if meta.get("format") != FORMAT:

@@ -83,11 +83,19 @@ def check_system(system: ControlAffineSystem, *, n_probe: int = 8, seed: int = 0
         raise SystemDefinitionError(f"system {system.name!r}: angle_period has {len(system.angle_period)} entries; it needs n={n}")
     rng = np.random.default_rng(seed)
     probe = xe + rng.uniform(-1.0, 1.0, (n_probe, n))
-    f = np.asarray(system.drift(probe))
+    def call(method: str, x):
+        try:
+            return np.asarray(getattr(system, method)(x))
+        except Exception as exc:  # noqa: BLE001 - the user's code: say which call failed, in one line
+            detail = str(exc).splitlines()[0] if str(exc) else ""
+            raise SystemDefinitionError(f"system {system.name!r}: {method}(x) raised {type(exc).__name__}: {detail} "
+                                        f"(check its parameters: {system!r})"[:500]) from None
+
+    f = call("drift", probe)
     if f.shape != (n_probe, n):
         raise SystemDefinitionError(f"system {system.name!r}: drift(x) returned shape {f.shape} for x of shape "
                            f"{probe.shape}; it must return ({n_probe}, {n}) (vectorise over leading axes)")
-    g = np.asarray(system.input_matrix(probe))
+    g = call("input_matrix", probe)
     if g.shape != (n_probe, n, m):
         raise SystemDefinitionError(f"system {system.name!r}: input_matrix(x) returned shape {g.shape} for x of shape "
                            f"{probe.shape}; it must return ({n_probe}, {n}, {m})")
