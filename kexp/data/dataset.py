@@ -35,11 +35,15 @@ class DataReport:
     n_dropped_traj: int
     filter: str
     region: str
+    noise_std: tuple | None = None   # σ per state of the measurement noise added (kexp.data.noise); None: none
 
     def lines(self) -> list[str]:
-        return [f"trajectories: {self.n_traj} ({self.n_dropped_traj} dropped by the filter)",
-                f"samples: {self.n_samples} ({self.n_masked_samples} masked: {self.filter}, region {self.region})",
-                f"snapshot pairs: {self.n_pairs}"]
+        out = [f"trajectories: {self.n_traj} ({self.n_dropped_traj} dropped by the filter)",
+               f"samples: {self.n_samples} ({self.n_masked_samples} masked: {self.filter}, region {self.region})",
+               f"snapshot pairs: {self.n_pairs}"]
+        if self.noise_std is not None:
+            out.append("measurement noise σ per state: [" + ", ".join(f"{s:.4g}" for s in self.noise_std) + "]")
+        return out
 
 
 @dataclass(frozen=True)
