@@ -94,6 +94,7 @@ def build_system(cfg: Mapping[str, Any]):
 def build_data(cfg: Mapping[str, Any]):
     """Returns (sampler, DataConfig)."""
     cfg = dict(_plain(cfg))
+    cfg.pop("noise", None)  # data.noise: applied after collection (build_data_noise, kexp.data.noise)
     sampler_cfg = dict(cfg.pop("sampler", None) or {})
     if "kind" not in sampler_cfg:
         raise ConfigError("data.sampler.kind is missing; valid: circle, box, points")
@@ -108,6 +109,42 @@ def build_data(cfg: Mapping[str, Any]):
                      filter=construct(RegionFilter, flt, "data.filter"),
                      integrator=construct(IntegratorOptions, integ, "data.integrator"))
     return sampler, data
+
+
+def build_noise(cfg: Mapping[str, Any] | None, where: str, n: int):
+    """The NoiseConfig of ``data.noise`` or ``sim.noise`` (``where``) for ``n`` states, errors naming that key."""
+    import re
+    from ..data.noise import NoiseConfig
+    try:
+        noise = construct(NoiseConfig, cfg, where)
+        noise.sigma(n, np.ones(n))  # one std, or one per state
+        return noise
+    except ConfigError as exc:
+        raise ConfigError(re.sub(r"(?<![\w.])noise\.", f"{where}.", str(exc))) from None
+
+
+def build_data_noise(cfg: Mapping[str, Any], n: int):
+    """The NoiseConfig of ``data.noise`` (none if absent) for ``n`` states."""
+    return build_noise(dict(_plain(cfg)).get("noise"), "data.noise", n)
+
+
+def build_plant(system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, Any]):
+    """(plant, params): the system the closed loop runs on — the configured system with ``sim.plant_params``
+    overriding its parameters (plant mismatch: the data and the identification keep the nominal system) — and
+    the plant's parameters as used.  An unknown parameter name is a ConfigError naming the valid ones."""
+    settings = system_settings(system_cfg)
+    overrides = dict(_plain(dict(_plain(sim_cfg)).get("plant_params")) or {})
+    nominal = make_system(settings["name"], settings["params"])
+    valid = sorted(f.name for f in dataclasses.fields(nominal) if f.init) if dataclasses.is_dataclass(nominal) \
+        else []
+    for key in overrides:
+        if key not in valid:
+            raise ConfigError(f"sim.plant_params.{key}: not a parameter of system {settings['name']!r}; valid: "
+                              f"{valid}")
+    if not overrides:
+        return nominal, {name: getattr(nominal, name) for name in valid}
+    plant = make_system(settings["name"], {**settings["params"], **overrides})
+    return plant, {name: getattr(plant, name) for name in valid}
 
 
 def build_dictionary(cfg: Mapping[str, Any], n: int, dataset=None) -> Monomials:
@@ -258,7 +295,12 @@ def build_sim(cfg: Mapping[str, Any], system, dt: float, sampler=None):
         raise ConfigError(f"sim.x0={x0.tolist()} lies outside the data region ({sampler.describe()}): the model is "
                           "not fit there; move x0, widen the data, or set sim.allow_outside_data=true")
     integ = construct(IntegratorOptions, cfg.pop("integrator", None), "sim.integrator")
-    return construct(SimConfig, cfg, "sim", dt=dt, integrator=integ), x0, open_loop
+    cfg.pop("plant_params", None)  # the plant: build_plant
+    from ..simulate import Disturbance
+    noise = build_noise(cfg.pop("noise", None), "sim.noise", system.n)
+    dist = construct(Disturbance, cfg.pop("disturbance", None), "sim.disturbance")
+    dist.sigma(system.m)  # one std, or one per input
+    return construct(SimConfig, cfg, "sim", dt=dt, integrator=integ, noise=noise, disturbance=dist), x0, open_loop
 
 
 def build_logging(cfg: Mapping[str, Any]) -> dict:

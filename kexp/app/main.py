@@ -15,6 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from ..clf.levelset import level_set_boundary
 from ..data import collect
+from ..data.noise import add_measurement_noise, data_rms
 from ..errors import ConfigError, KexpError
 from ..identify import identify
 from ..recording.schema import plain
@@ -23,7 +24,8 @@ from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
-                    build_identification, build_logging, build_sim, build_system, check_data_budget,
+                    build_data_noise, build_identification, build_logging, build_plant, build_sim, build_system,
+                    check_data_budget,
                     check_memory_budget, dictionary_size, system_settings)
 from .cache import Cache, clf_key, model_key
 from .lock import lock_info
@@ -69,6 +71,33 @@ def config_dict(cfg: Any) -> dict:
     return out
 
 
+def _perturbation(system, plant_params: dict, model, sim_cfg) -> dict:
+    """Noise and mismatch as used (summary.json, /summary): σ per state of the data noise and of the closed
+    loop's measurement noise (absolute), σ per input of the disturbance, the data RMS a relative σ refers to, and
+    the plant's parameters with those that differ from the nominal system."""
+    rms = model.report.get("data_rms")
+    sim_std = sim_cfg.noise.sigma(system.n, rms) if sim_cfg.noise.active else np.zeros(system.n)
+    dist_std = sim_cfg.disturbance.sigma(system.m) if sim_cfg.disturbance.active else np.zeros(system.m)
+    return {"noise": {"data_rms": rms, "data_noise_std": model.report.get("data_noise_std"),
+                      "sim_noise_std": sim_std.tolist(), "disturbance_std": dist_std.tolist()},
+            "plant": {"params": plant_params,
+                      "mismatch": {k: {"nominal": getattr(system, k), "plant": v} for k, v in plant_params.items()
+                                   if getattr(system, k) != v}}}
+
+
+def _perturbation_lines(p: dict) -> list[str]:
+    fmt = lambda v: "[" + ", ".join(f"{x:.4g}" for x in v) + "]"  # noqa: E731
+    out = []
+    if p["plant"]["mismatch"]:
+        out.append("plant mismatch: " + ", ".join(f"{k} = {d['plant']:g} (data: {d['nominal']:g})"
+                                                  for k, d in p["plant"]["mismatch"].items()))
+    if any(p["noise"]["sim_noise_std"]):
+        out.append(f"closed-loop measurement noise σ per state: {fmt(p['noise']['sim_noise_std'])}")
+    if any(p["noise"]["disturbance_std"]):
+        out.append(f"process disturbance on the input σ: {fmt(p['noise']['disturbance_std'])}")
+    return out
+
+
 def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool | None = None) -> dict:
     """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
     data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
@@ -85,7 +114,9 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     sampler, data_cfg = build_data(cfg["data"])
     ident_cfg = build_identification(cfg["identification"])
     clf_cfg = build_clf(cfg["clf"])
+    data_noise = build_data_noise(cfg["data"], system.n)
     sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt, sampler)
+    plant, plant_params = build_plant(cfg_dict["system"], cfg["sim"])
     log_cfg = build_logging(cfg.get("logging") or {})
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
@@ -98,13 +129,24 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
 
     def identify_now():
         dataset = collect(system, sampler, data_cfg)
-        return identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
+        rms = data_rms(dataset, system.equilibrium)
+        dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium)
+        model = identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
+        # kept with the cached model: a relative sim.noise is a fraction of these (clean data, about x_eq)
+        model.report["data_rms"] = rms.tolist()
+        model.report["data_noise_std"] = None if dataset.report.noise_std is None else list(
+            dataset.report.noise_std)
+        return model
 
     mkey = model_key(cfg_dict, FORMAT_VERSION)
     model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
                                 KoopmanBilinearModel.load)
     model_path = model.save(out_dir / "model.npz")
     echo(model.summary())
+    rms = model.report.get("data_rms")
+    perturbation = _perturbation(system, plant_params, model, sim_cfg)
+    for line in _perturbation_lines(perturbation):
+        echo(line)
     clf = cache.get_or_create(
         f"clf-{clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max)}.npz",
         lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
@@ -130,8 +172,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
 
     try:
         with threadpool_limits(limits=1):  # BLAS threads on tiny products cost 10-100× (design §2.11)
-            result = closed_loop(system, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
-                                 on_step=on_step)
+            result = closed_loop(plant, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
+                                 on_step=on_step, noise_scale=rms)
     finally:
         bar.close()
     m = result.metrics
@@ -145,7 +187,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         if result.open_loop is not None:
             logger.log_open_loop(np.arange(len(result.open_loop)) * sim_cfg.dt, result.open_loop)
         t_end = float(result.t[-1])
-        logger.log_summary(t_end, result.status, result.message, deterministic, completed=True)
+        logger.log_summary(t_end, result.status, result.message, deterministic, completed=True,
+                           perturbation=perturbation)
         logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock)
         logger.close()
         files["mcap"] = logger.path.name
@@ -168,6 +211,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
                   "prediction_error": model.report["prediction_error"],
                   "input_projection_residual": model.report["input_projection_residual"],
                   "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
+        "noise": perturbation["noise"],
+        "plant": perturbation["plant"],
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
         "versions": versions,
         "lock": lock,

@@ -115,12 +115,16 @@ def _build() -> type:
     from ..simulate import SimConfig
 
     lmpc_s = derive(LmpcConfig)
-    data_s = derive(DataConfig, extra=(("sampler", SamplerSchema, field(default_factory=SamplerSchema)),))
+    from ..data.noise import NoiseConfig
+    noise_s = derive(NoiseConfig)
+    data_s = derive(DataConfig, extra=(("sampler", SamplerSchema, field(default_factory=SamplerSchema)),
+                                       ("noise", noise_s, field(default_factory=noise_s))))
     dictionary_s = derive(Monomials, exclude=("n",), extra=(("kind", str, field(default="monomials")),))
     ident_s, clf_s = derive(IdentifyConfig), derive(ClfConfig)
     sim_s = derive(SimConfig, exclude=("dt",), extra=(
         ("x0", Any, field(default=None)), ("open_loop", bool, field(default=True)),
-        ("allow_outside_data", bool, field(default=False))))
+        ("allow_outside_data", bool, field(default=False)),
+        ("plant_params", Dict[str, Any], field(default_factory=dict))))
 
     @dataclass
     class ControllerSchema:

@@ -73,7 +73,10 @@ class RunLogger:
     def log_step(self, rec, control_step=None, model=None) -> None:
         t = float(rec.t)
         self.write("/step", t, {
-            "k": int(rec.k), "t": t, "x": rec.x.tolist(), "z": np.asarray(rec.z).tolist(), "u": rec.u.tolist(),
+            "k": int(rec.k), "t": t, "x": rec.x.tolist(),
+            "x_meas": (rec.x if getattr(rec, "x_meas", None) is None else rec.x_meas).tolist(),
+            "z": np.asarray(rec.z).tolist(), "u": rec.u.tolist(),
+            "w": (np.zeros_like(rec.u) if getattr(rec, "w", None) is None else np.asarray(rec.w)).tolist(),
             "V": float(rec.V), "Vdot": float(rec.Vdot), "region": rec.region, "active": rec.active,
             "binds": bool(rec.binds), "slack": float(rec.slack), "status": rec.status, "qp_status": rec.qp_status,
             "iterations": int(rec.iterations), "qp_iterations": int(rec.qp_iterations),
@@ -93,9 +96,13 @@ class RunLogger:
         for ti, xi in zip(t, x):
             self.write("/open_loop", float(ti), {"t": float(ti), "x": xi})
 
-    def log_summary(self, t: float, status: str, message: str, metrics: dict, completed: bool) -> None:
-        self.write("/summary", t, {"status": status, "message": message, "metrics": metrics,
-                                   "completed": completed})
+    def log_summary(self, t: float, status: str, message: str, metrics: dict, completed: bool,
+                    perturbation: dict | None = None) -> None:
+        """``perturbation``: the noise and plant mismatch as used ({"noise": …, "plant": …}; kexp.app.main)."""
+        payload = {"status": status, "message": message, "metrics": metrics, "completed": completed}
+        if perturbation is not None:
+            payload.update(perturbation)
+        self.write("/summary", t, payload)
 
     def log_run_info(self, t: float, versions: dict, timing: dict, lock: dict | None = None) -> None:
         self.write("/run_info", t, {"versions": versions, "timing": timing, "lock": lock})

@@ -1,3 +1,3 @@
-from .closed_loop import RunMetrics, RunResult, SimConfig, StepRecord, closed_loop, run_cost
+from .closed_loop import Disturbance, RunMetrics, RunResult, SimConfig, StepRecord, closed_loop, run_cost
 
-__all__ = ["RunMetrics", "RunResult", "SimConfig", "StepRecord", "closed_loop", "run_cost"]
+__all__ = ["Disturbance", "RunMetrics", "RunResult", "SimConfig", "StepRecord", "closed_loop", "run_cost"]

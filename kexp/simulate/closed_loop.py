@@ -1,17 +1,50 @@
 """Closed loop in sample-and-hold on the TRUE nonlinear system.
 
-At t_k the controller sees x(t_k) (and z = Ψ(x(t_k)) − Ψ(x_eq) if a model is given), returns u_k, and the true
-system is integrated accurately (adaptive DOP853) over [t_k, t_k + Δ) with u_k held.  Arrays: t (T+1,),
-x (T+1, n), u (T, m), z (T+1, k).
+At t_k the controller sees the measured state x̃_k = x(t_k) + v_k (and z = Ψ(x̃_k) − Ψ(x_eq) if a model is
+given), returns u_k, and the true system (the plant: it may differ from the system the data came from, see
+``sim.plant_params``) is integrated accurately (adaptive DOP853) over [t_k, t_k + Δ) with u_k + w_k held.
+v_k ~ N(0, diag σ_v²) is the measurement noise (``SimConfig.noise``, 0 by default), w_k ~ N(0, diag σ_w²) the
+process disturbance added to the input channel, piecewise constant over each step (``SimConfig.disturbance``,
+0 by default); each has its own ``default_rng(seed)``.  Arrays: t (T+1,), x (T+1, n), u (T, m), z (T+1, k).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
+from ..data.noise import NoiseConfig, _check_std
 from ..errors import ConfigError, require_number
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """Additive process disturbance (frozen): w_k ~ N(0, diag std²) drawn from ``default_rng(seed)`` once per
+    control step and added to the input the plant receives, u_k + w_k, held over [t_k, t_k + Δ) like u_k (a
+    force in the input channel; not limited by the input bounds).  ``std`` in input units: a number >= 0 or one
+    per input; 0 (the default): none.  Raises ConfigError for a negative std or a non-integer seed."""
+
+    std: Any = 0.0
+    seed: int = 0
+
+    def __post_init__(self):
+        if isinstance(self.std, list):
+            object.__setattr__(self, "std", tuple(self.std))
+        _check_std(self.std, "sim.disturbance.std")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise ConfigError(f"sim.disturbance.seed={self.seed!r}: expected an integer")
+
+    @property
+    def active(self) -> bool:
+        return any(v > 0 for v in (self.std if isinstance(self.std, tuple) else (self.std,)))
+
+    def sigma(self, m: int) -> np.ndarray:
+        std = np.asarray(self.std, float).reshape(-1)
+        if std.size not in (1, m):
+            raise ConfigError(f"sim.disturbance.std={list(std)}: give one number or {m} (one per input)")
+        return np.broadcast_to(std, (m,)).astype(float)
 
 
 @dataclass(frozen=True)
@@ -19,7 +52,10 @@ class SimConfig:
     """Closed-loop settings (frozen): horizon ``T`` and control step ``dt`` in seconds (0 < dt ≤ T; ``n_steps`` =
     round(T/dt) sample-and-hold steps), ``tol`` > 0 the success radius around x_eq, ``r`` the input weight of
     the reported cost, ``diverge_bound`` the ‖x − x_eq‖ where a run stops as diverged, ``integrator`` the ODE
-    solver options of each step.  Raises :class:`~kexp.errors.ConfigError` for values outside those ranges."""
+    solver options of each step, ``noise`` the measurement noise on what the controller sees (relative: a
+    fraction of the data's RMS per state, passed to :func:`closed_loop` as ``noise_scale``), ``disturbance`` the
+    process disturbance on the input channel.  Raises :class:`~kexp.errors.ConfigError` for values outside those
+    ranges."""
 
     T: float = 10.0
     dt: float = 0.01
@@ -27,6 +63,8 @@ class SimConfig:
     r: float = 1.0               # input weight in the reported cost J = ∫ ‖x − x_eq‖² + uᵀRu dt
     diverge_bound: float = 1e6
     integrator: IntegratorOptions = field(default_factory=lambda: IntegratorOptions(batch=1))
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    disturbance: Disturbance = field(default_factory=Disturbance)
 
     def __post_init__(self):
         for key in ("T", "dt", "tol", "r", "diverge_bound"):
@@ -43,7 +81,9 @@ class SimConfig:
 
 @dataclass(frozen=True)
 class StepRecord:
-    """One control step Δ (all fields logged)."""
+    """One control step Δ (all fields logged): ``x`` the true state, ``x_meas`` what the controller saw (x plus
+    measurement noise), ``z`` = Ψ(x_meas) − Ψ(x_eq) and V, V̇ at that z, ``u`` the controller's input, ``w`` the
+    process disturbance added to it over the step."""
 
     k: int
     t: float
@@ -63,6 +103,8 @@ class StepRecord:
     solve_time: float
     fallback: bool
     reason: str
+    x_meas: np.ndarray | None = None   # None: equal to x
+    w: np.ndarray | None = None        # None: no disturbance
 
 
 @dataclass(frozen=True)
@@ -130,10 +172,12 @@ def _metrics(t, x, u, records, x_eq, cfg: SimConfig) -> RunMetrics:
 
 
 def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, model=None, lyap=None,
-                open_loop: bool = False, on_step=None) -> RunResult:
-    """Simulate ``controller`` on ``system`` from ``x0`` (n,).  ``model`` lifts x to z for controllers that need
-    it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the records.  ``on_step(record,
-    control_step)`` is called after each control decision, before the step is integrated (logging, progress)."""
+                open_loop: bool = False, on_step=None, noise_scale=None) -> RunResult:
+    """Simulate ``controller`` on ``system`` (the true plant) from ``x0`` (n,).  ``model`` lifts the measured x to
+    z for controllers that need it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the
+    records.  ``on_step(record, control_step)`` is called after each control decision, before the step is
+    integrated (logging, progress).  ``noise_scale`` (n,): the per-state scale of a relative ``config.noise``
+    (the data's RMS, :func:`kexp.data.noise.data_rms`); ConfigError if a relative noise has none."""
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
         raise ConfigError(f"initial condition {x0.tolist()}: need {system.n} finite numbers")
@@ -147,27 +191,34 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     xs[0] = x0
     records = []
     status, message = "completed", ""
+    sigma_v = config.noise.sigma(system.n, noise_scale) if config.noise.active else None
+    sigma_w = config.disturbance.sigma(system.m) if config.disturbance.active else None
+    rng_v = np.random.default_rng(config.noise.seed)
+    rng_w = np.random.default_rng(config.disturbance.seed)
     controller.reset()
     last = n_steps
     for k in range(n_steps):
-        z = model.lift(xs[k]) if model is not None else np.zeros(0)
-        step = controller.step(xs[k], z)
+        x_meas = xs[k] + sigma_v * rng_v.standard_normal(system.n) if sigma_v is not None else xs[k].copy()
+        z = model.lift(x_meas) if model is not None else np.zeros(0)
+        step = controller.step(x_meas, z)
         u = np.asarray(step.u, float)
         if not np.all(np.isfinite(u)):
             u = np.zeros(system.m)
         us[k] = u
+        w = sigma_w * rng_w.standard_normal(system.m) if sigma_w is not None else None
         V = float(lyap.value(z)) if lyap is not None else float("nan")
         Vdot = float(lyap.vdot(z, u)) if lyap is not None else float("nan")
         rec = StepRecord(k=k, t=float(t[k]), x=xs[k].copy(), z=z, u=u.copy(), V=V, Vdot=Vdot,
                          region=step.region, active=step.active, binds=step.binds, slack=step.slack,
                          status=step.status, qp_status=step.qp_status, iterations=step.iterations,
                          qp_iterations=step.qp_iterations, solve_time=step.solve_time,
-                         fallback=step.fallback, reason=step.reason)
+                         fallback=step.fallback, reason=step.reason, x_meas=x_meas, w=w)
         records.append(rec)
         if on_step is not None:
             on_step(rec, step)
         try:
-            nxt = integrate(system, xs[k][None], t[k:k + 2], u[None, None], config.integrator)[0, 1]
+            u_plant = u if w is None else u + w
+            nxt = integrate(system, xs[k][None], t[k:k + 2], u_plant[None, None], config.integrator)[0, 1]
         except IntegrationFailure as exc:
             status, message, last = "diverged", f"integration failed at t={t[k]:.3f}: {exc}", k
             break
