@@ -76,6 +76,10 @@ def _perturbation(system, plant_params: dict, model, sim_cfg) -> dict:
     loop's measurement noise (absolute), σ per input of the disturbance, the data RMS a relative σ refers to, and
     the plant's parameters with those that differ from the nominal system."""
     rms = model.report.get("data_rms")
+    if sim_cfg.noise.active and sim_cfg.noise.relative and rms is None:
+        raise ConfigError("sim.noise.relative=true: this model's report has no data RMS (a model file from before "
+                          "kexp recorded it); set sim.noise.relative=false with an absolute std, or re-identify "
+                          "with cache.enabled=false")
     sim_std = sim_cfg.noise.sigma(system.n, rms) if sim_cfg.noise.active else np.zeros(system.n)
     dist_std = sim_cfg.disturbance.sigma(system.m) if sim_cfg.disturbance.active else np.zeros(system.m)
     return {"noise": {"data_rms": rms, "data_noise_std": model.report.get("data_noise_std"),
