@@ -222,3 +222,14 @@ def test_bad_plant_param_at_the_cli_is_one_line_and_exit_2(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip() == ("kexp: error: sim.plant_params.damping: not a parameter of system 'vanderpol'; "
                                    "valid: ['mu']")
+
+
+def test_the_recording_draws_the_measured_state_and_the_disturbance_only_when_present(runs, tmp_path):
+    from kexp.recording.render import render
+    from test_render import load_rrd, scalars
+    ents = load_rrd(render(runs["noisy"][0] / "run.mcap", tmp_path / "noisy.rrd"))["entities"]
+    steps = _steps(runs["noisy"][0])
+    np.testing.assert_allclose(scalars(ents["/states/x2_meas"]), [s["x_meas"][1] for s in steps])
+    np.testing.assert_allclose(scalars(ents["/input/w1"]), [s["w"][0] for s in steps])
+    plain = load_rrd(render(runs["nominal"][0] / "run.mcap", tmp_path / "nominal.rrd"))["entities"]
+    assert "/states/x1" in plain and not {"/states/x1_meas", "/input/w1"} & set(plain)

@@ -133,6 +133,18 @@ def _log_steps(rec, rr, log: RunLog, names: list[str]) -> dict:
             _series(rec, rr, f"states/x{i + 1}", label, _PALETTE[i % len(_PALETTE)], times, x[:, i])
         for i in range(u.shape[1]):
             _series(rec, rr, f"input/u{i + 1}", f"u{i + 1}", _PALETTE[(i + 3) % len(_PALETTE)], times, u[:, i])
+        # measurement noise / disturbance (sim.noise, sim.disturbance): drawn only when the run had them
+        if all(m.get("x_meas") is not None for m in msgs):
+            xm = _rows([m.get("x_meas") for m in msgs])
+            if xm.shape == x.shape and not np.array_equal(xm, x):
+                for i in range(x.shape[1]):
+                    _series(rec, rr, f"states/x{i + 1}_meas", f"x{i + 1} measured", _GRAY, times, xm[:, i])
+        if all(m.get("w") is not None for m in msgs):
+            w = _rows([m.get("w") for m in msgs])
+            if w.shape == u.shape and np.any(w != 0):
+                for i in range(w.shape[1]):
+                    _series(rec, rr, f"input/w{i + 1}", f"w{i + 1} (disturbance)", _GRAY, times, w[:, i],
+                            step=True)
         _series(rec, rr, "lyapunov/V", "V", _BLUE, times, [_f(m.get("V")) for m in msgs])
         _series(rec, rr, "lyapunov/Vdot", "V̇", _RED, times, [_f(m.get("Vdot")) for m in msgs])
         _series(rec, rr, "constraints/active", "active (0 none, 1 21e, 2 21f)", _PURPLE, times,
