@@ -233,3 +233,35 @@ def test_the_recording_draws_the_measured_state_and_the_disturbance_only_when_pr
     np.testing.assert_allclose(scalars(ents["/input/w1"]), [s["w"][0] for s in steps])
     plain = load_rrd(render(runs["nominal"][0] / "run.mcap", tmp_path / "nominal.rrd"))["entities"]
     assert "/states/x1" in plain and not {"/states/x1_meas", "/input/w1"} & set(plain)
+
+
+def test_closed_loop_gives_the_controller_only_the_measured_state():
+    """closed_loop alone (no app): the controller's input is x + v, the plant integrates the true x under u + w."""
+    from kexp.control import LqrController
+    from kexp.simulate import Disturbance, SimConfig, closed_loop
+
+    class Spy:
+        name = "spy"
+
+        def __init__(self):
+            self.inner, self.seen = LqrController(make_system("vanderpol"), -5, 5), []
+
+        def reset(self):
+            self.inner.reset()
+
+        def step(self, x, z):
+            self.seen.append(np.array(x))
+            return self.inner.step(x, z)
+
+    spy = Spy()
+    cfg = SimConfig(T=0.5, noise=NoiseConfig(std=[0.05, 0.0], relative=False, seed=2),
+                    disturbance=Disturbance(std=0.1, seed=3))
+    res = closed_loop(make_system("vanderpol", {"mu": 1.3}), spy, [0.7, -0.5], cfg)
+    seen, x = np.array(spy.seen), res.x[:-1]
+    np.testing.assert_array_equal(seen, [r.x_meas for r in res.records])
+    np.testing.assert_array_equal(x, [r.x for r in res.records])
+    np.testing.assert_allclose(seen - x, np.array([0.05, 0.0]) * np.random.default_rng(2).standard_normal((50, 2)),
+                               atol=1e-15)
+    assert np.array_equal(seen[:, 1], x[:, 1])                   # σ = 0 for x2: measured exactly
+    with pytest.raises(ConfigError, match=r"noise\.relative=true needs the data's RMS per state: pass it"):
+        closed_loop(make_system("vanderpol"), spy, [0.7, -0.5], SimConfig(T=0.1, noise=NoiseConfig(std=0.01)))

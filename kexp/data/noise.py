@@ -59,7 +59,8 @@ class NoiseConfig:
         if not self.relative:
             return std
         if rms is None:
-            raise ConfigError("noise.relative=true needs the data's RMS per state")
+            raise ConfigError("noise.relative=true needs the data's RMS per state: pass it (closed_loop(..., "
+                              "noise_scale=data_rms(dataset))) or give an absolute std with relative=false")
         return std * np.asarray(rms, float)
 
 
