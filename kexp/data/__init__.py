@@ -1,7 +1,9 @@
 from .collect import DataConfig, Excitation, RegionFilter, collect
 from .dataset import DataReport, Dataset
+from .files import DataBounds, DataSource, read_runs, write_runs
 from .integrate import IntegrationFailure, IntegratorOptions, integrate
 from .samplers import SAMPLERS, Box, Circle, Points, make_sampler
 
 __all__ = ["DataConfig", "Excitation", "RegionFilter", "collect", "DataReport", "Dataset", "IntegrationFailure",
-           "IntegratorOptions", "integrate", "SAMPLERS", "Box", "Circle", "Points", "make_sampler"]
+           "IntegratorOptions", "integrate", "SAMPLERS", "Box", "Circle", "Points", "make_sampler",
+           "DataBounds", "DataSource", "read_runs", "write_runs"]

@@ -8,6 +8,7 @@ import numpy as np
 from ..errors import ConfigError, DataError, require_number
 from ..systems.base import ControlAffineSystem
 from .dataset import PAIR_RULES, DataReport, Dataset
+from .files import DataSource
 from .integrate import IntegrationFailure, IntegratorOptions, integrate
 
 
@@ -79,7 +80,9 @@ class RegionFilter:
 
 @dataclass(frozen=True)
 class DataConfig:
-    """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``."""
+    """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``.  ``source`` says
+    whether the data is simulated (collect(), the default) or read from recorded runs (kexp.data.files; then
+    ``dt`` must equal the files' sample spacing, and ``T``, the sampler and ``excitation`` do not apply)."""
 
     T: float = 10.0
     dt: float = 0.01
@@ -88,6 +91,7 @@ class DataConfig:
     excitation: Excitation | None = None
     filter: RegionFilter = field(default_factory=RegionFilter)
     integrator: IntegratorOptions = field(default_factory=IntegratorOptions)
+    source: DataSource = field(default_factory=DataSource)
 
     def __post_init__(self):
         require_number(self.dt, "data.dt")
@@ -99,6 +103,9 @@ class DataConfig:
             raise ConfigError(f"data.T={self.T}: the duration must be >= dt={self.dt}")
         if self.pairs not in PAIR_RULES:
             raise ConfigError(f"data.pairs={self.pairs!r}; valid: {PAIR_RULES}")
+        if self.source.kind == "files" and self.excitation is not None:
+            raise ConfigError("data.excitation applies to simulated data; recorded runs bring their own u "
+                              "(set data.excitation=null with data.source.kind=files)")
 
     @property
     def n_steps(self) -> int:
