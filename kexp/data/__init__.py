@@ -1,4 +1,5 @@
-from .collect import DataConfig, Excitation, RegionFilter, collect
+from .collect import DataConfig, RegionFilter, collect
+from .excitation import EXCITATION_KINDS, Excitation
 from .dataset import DataReport, Dataset
 from .files import DataBounds, DataSource, read_runs, write_runs
 from .integrate import IntegrationFailure, IntegratorOptions, integrate
@@ -6,4 +7,4 @@ from .samplers import SAMPLERS, Box, Circle, Points, make_sampler
 
 __all__ = ["DataConfig", "Excitation", "RegionFilter", "collect", "DataReport", "Dataset", "IntegrationFailure",
            "IntegratorOptions", "integrate", "SAMPLERS", "Box", "Circle", "Points", "make_sampler",
-           "DataBounds", "DataSource", "read_runs", "write_runs"]
+           "DataBounds", "EXCITATION_KINDS", "DataSource", "read_runs", "write_runs"]
