@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kexp.data import Circle, DataConfig, RegionFilter, collect, read_runs, write_runs
+from kexp.data import Circle, DataConfig, Excitation, RegionFilter, collect, read_runs, write_runs
 from kexp.dictionary import Monomials
 from kexp.errors import DataError
 from kexp.identify import IdentifyConfig, identify
@@ -40,6 +40,19 @@ def test_round_trip_gives_the_same_model(small, fmt, tmp_path):
     for name in ("Lambda", "B", "b", "C"):
         assert np.allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12), name
     assert np.max(np.abs(a.eigenvalues - b.eigenvalues)) < 1e-12
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+def test_forced_round_trip_gives_the_same_regressed_model(fmt, tmp_path):
+    """Inputs travel too: PRBS on half the runs (the others u = 0), B and b regressed from the data."""
+    ds = collect(VDP, Circle(8, 2.0), DataConfig(T=2.0, excitation=Excitation(kind="prbs", hold=5, fraction=0.5)))
+    write_runs(ds, tmp_path, fmt)
+    back = read_runs(tmp_path, n=2, m=1, dt=0.01)
+    assert np.array_equal(back.u, ds.u) and int(np.any(back.u != 0, axis=(1, 2)).sum()) == 4
+    cfg = IdentifyConfig(inputs="regression")
+    a, b = identify(VDP, ds, Monomials(2, 3), cfg), identify(VDP, back, Monomials(2, 3), cfg)
+    for name in ("Lambda", "B", "b", "C"):
+        assert np.allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12), name
 
 
 def test_runs_of_different_lengths_are_padded_and_masked(tmp_path):
@@ -80,6 +93,10 @@ def test_mcap_log_of_a_kexp_run_is_data():
     assert np.array_equal(ds.x[0], [s["x"] for s in steps])
     assert np.array_equal(ds.u[0, :, 0], [s["u"][0] for s in steps[:-1]])
     assert ds.forced and ds.n_pairs == 199 and ds.report.source.startswith("1 mcap file(s)")
+    # closed-loop data identifies a model (B, b regressed from the logged inputs)
+    model = identify(VDP, ds, Monomials(2, 2), IdentifyConfig(inputs="regression", holdout=0))
+    assert model.k == 6 and model.report["n_pairs_train"] == 199
+    assert np.all(np.isfinite(model.B)) and np.all(np.isfinite(model.b))
     with pytest.raises(DataError, match="recorded with system 'vanderpol', but system.name='pendulum'"):
         read_runs(path, n=2, m=1, dt=0.01, system_name="pendulum")
 

@@ -71,7 +71,7 @@ def test_collect_mixes_excited_and_unforced_runs():
     ds = collect(VDP, Circle(6, 1.0), cfg)
     excited = np.any(ds.u != 0, axis=(1, 2))
     assert ds.u.shape == (6, 50, 1) and excited.sum() == 3 and ds.forced
-    assert ds.report.lines()[0] == "data: simulated, 3 of 6 trajectories excited (prbs)"
+    assert ds.report.lines()[0] == "simulated, 3 of 6 trajectories excited (prbs)"
     assert np.array_equal(ds.x, collect(VDP, Circle(6, 1.0), cfg).x)
 
 

@@ -45,9 +45,9 @@ class DataReport:
                f"samples: {self.n_samples} ({self.n_masked_samples} masked: {self.filter}, region {self.region})",
                f"snapshot pairs: {self.n_pairs}"]
         if self.source != "simulated" and not self.digest:
-            out.insert(0, f"data: {self.source}")
+            out.insert(0, self.source)
         elif self.source != "simulated":
-            out.insert(0, f"data: {self.source} (sha256 {self.digest}); {self.n_nan_samples} NaN row(s) masked, "
+            out.insert(0, f"{self.source} (sha256 {self.digest}); {self.n_nan_samples} NaN row(s) masked, "
                           f"{self.n_padded_samples} padding sample(s) after shorter runs")
         return out
 
