@@ -116,6 +116,18 @@ def test_reading_streams_one_file_at_a_time(tmp_path):
     assert peak < 2.7 * x_bytes, peak / x_bytes
 
 
+def test_ragged_csv_row_and_digest(tmp_path):
+    _csv(tmp_path / "a.csv", ["t", "x1", "x2"], [[0.0, 1.0, 2.0], [0.01, 1.0], [0.02, 1.0, 2.0]])
+    with pytest.raises(DataError, match="data row 2 has 2 cells, the header 3"):
+        read_runs(tmp_path, n=2, m=1, dt=0.01)
+    # the digest (part of the model cache key) follows the files' content, not only their path
+    _csv(tmp_path / "a.csv", ["t", "x1", "x2"], [[0.0, 1.0, 2.0], [0.01, 1.0, 2.5], [0.02, 1.0, 2.0]])
+    d1 = read_runs(tmp_path, n=2, m=1, dt=0.01).report.digest
+    _csv(tmp_path / "a.csv", ["t", "x1", "x2"], [[0.0, 1.0, 2.0], [0.01, 1.0, 2.6], [0.02, 1.0, 2.0]])
+    d2 = read_runs(tmp_path, n=2, m=1, dt=0.01).report.digest
+    assert len(d1) == 20 and d1 != d2
+
+
 def _csv(path, header, rows):
     path.write_text(",".join(header) + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
 

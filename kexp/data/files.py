@@ -215,15 +215,25 @@ def _read_mcap(f: Path, n: int, m: int, system_name: str | None = None):
 def _read_run(f: Path, fmt: str, n: int, m: int):
     """(t (T+1,), x (T+1, n), u (T, m) or None) of one run."""
     if fmt == "npz":
-        with np.load(f, allow_pickle=False) as z:
-            return (np.asarray(z["t"], float), np.asarray(z["x"], float),
-                    np.asarray(z["u"], float) if "u" in z.files else None)
+        try:
+            with np.load(f, allow_pickle=False) as z:
+                return (np.asarray(z["t"], float), np.asarray(z["x"], float),
+                        np.asarray(z["u"], float) if "u" in z.files else None)
+        except (ValueError, TypeError, OSError, zipfile.BadZipFile) as exc:
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise DataError(f"{f}: arrays t, x, u must hold numbers ({msg})") from None
     if fmt == "csv":
         header, _ = _csv_header(f)
         with open(f, newline="") as fh:
-            lines = fh.read().splitlines()[1:]
-        data = np.genfromtxt(io.StringIO("\n".join(line for line in lines if line.strip())), delimiter=",",
-                             dtype=float, ndmin=2)
+            lines = [line for line in fh.read().splitlines()[1:] if line.strip()]
+        for k, line in enumerate(lines):
+            if line.count(",") != len(header) - 1:
+                raise DataError(f"{f}: data row {k + 1} has {line.count(',') + 1} cells, the header "
+                                f"{len(header)}; give one cell per column (empty for the last row's u)")
+        try:
+            data = np.genfromtxt(io.StringIO("\n".join(lines)), delimiter=",", dtype=float, ndmin=2)
+        except ValueError as exc:
+            raise DataError(f"{f}: unreadable CSV ({str(exc).splitlines()[0]})") from None
         if data.shape[1] != len(header):
             raise DataError(f"{f}: rows have {data.shape[1]} cells, the header {len(header)}")
         u = data[:-1, 1 + n:] if len(header) > 1 + n else None
