@@ -70,6 +70,17 @@ def test_runs_of_different_lengths_are_padded_and_masked(tmp_path):
     assert np.allclose(ds.t, np.arange(12) * 0.1)  # each run's time relative to its first sample
 
 
+def test_region_filter_applies_to_recorded_runs(tmp_path):
+    x = np.column_stack([np.linspace(-1, 1, 21), np.zeros(21)])  # x1 from -1 to 1 in steps of 0.1
+    np.savez(tmp_path / "a.npz", t=np.arange(21) * 0.01, x=x)
+    ds = read_runs(tmp_path, n=2, m=1, dt=0.01, region_filter=RegionFilter(low=-0.45, high=0.45), x_eq=[0.0, 0.0])
+    assert ds.valid[0].sum() == 9 and ds.report.n_masked_samples == 12 and ds.report.filter == "mask"
+    assert ds.n_pairs == 8
+    with pytest.raises(DataError, match="the filter removed every sample"):  # mode drop: the run leaves it
+        read_runs(tmp_path, n=2, m=1, dt=0.01, x_eq=[0.0, 0.0],
+                  region_filter=RegionFilter(low=-0.45, high=0.45, mode="drop"))
+
+
 def test_nan_rows_are_masked_and_counted(tmp_path):
     x = np.column_stack([np.linspace(0, 1, 11), np.linspace(1, 2, 11)])
     x[3, 1] = np.nan
@@ -99,6 +110,17 @@ def test_mcap_log_of_a_kexp_run_is_data():
     assert np.all(np.isfinite(model.B)) and np.all(np.isfinite(model.b))
     with pytest.raises(DataError, match="recorded with system 'vanderpol', but system.name='pendulum'"):
         read_runs(path, n=2, m=1, dt=0.01, system_name="pendulum")
+
+
+def test_a_cut_mcap_log_gives_its_steps_and_says_so(tmp_path):
+    data = (ROOT / "recordings" / "paper_vanderpol.mcap").read_bytes()
+    cut = tmp_path / "run.mcap"
+    cut.write_bytes(data[:int(0.6 * len(data))])
+    ds = read_runs(cut, n=2, m=1, dt=0.01)
+    full = read_runs(ROOT / "recordings" / "paper_vanderpol.mcap", n=2, m=1, dt=0.01)
+    T1 = ds.x.shape[1]
+    assert 2 <= T1 < 200 and np.array_equal(ds.x[0], full.x[0, :T1])
+    assert "1 log(s) cut short or unfinished: run.mcap is truncated" in ds.report.lines()[0]
 
 
 def test_reading_streams_one_file_at_a_time(tmp_path):

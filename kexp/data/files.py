@@ -151,8 +151,9 @@ def _check_columns(f: Path, header: list[str], n: int, m: int) -> bool:
     raise DataError(f"{f}: columns {header}; expected t,{','.join(xs)}[,{','.join(us)}] in this order")
 
 
-def _run_shape(f: Path, fmt: str, n: int, m: int, system_name: str | None = None) -> tuple[int, bool]:
-    """(number of samples, has inputs) of one run, checking its layout without reading the values."""
+def _run_shape(f: Path, fmt: str, n: int, m: int, system_name: str | None = None) -> tuple[int, bool, str]:
+    """(number of samples, has inputs, warning) of one run, checking its layout without reading the values; the
+    warning says if an MCAP log was cut short or its run did not finish (its steps up to there are read)."""
     if fmt == "npz":
         shapes = _npz_shapes(f)
         missing = [k for k in ("t", "x") if k not in shapes]
@@ -171,15 +172,15 @@ def _run_shape(f: Path, fmt: str, n: int, m: int, system_name: str | None = None
             raise DataError(f"{f}: x has {xs[1]} state column(s), but the system has n={n}")
         if "u" in shapes and tuple(shapes["u"]) != (T1 - 1, m):
             raise DataError(f"{f}: u has shape {shapes['u']}; expected (T, m) = ({T1 - 1}, {m})")
-        return T1, "u" in shapes
+        return T1, "u" in shapes, ""
     if fmt == "csv":
         header, rows = _csv_header(f)
         has_u = _check_columns(f, header, n, m)
         if rows < 2:
             raise DataError(f"{f}: {rows} data row(s); a run needs at least 2 samples")
-        return rows, has_u
-    t, x, u = _read_mcap(f, n, m, system_name)
-    return t.size, True
+        return rows, has_u, ""
+    t, x, u, warning = _read_mcap(f, n, m, system_name)
+    return t.size, True, warning
 
 
 def _read_mcap(f: Path, n: int, m: int, system_name: str | None = None):
@@ -209,7 +210,7 @@ def _read_mcap(f: Path, n: int, m: int, system_name: str | None = None):
         return out
 
     t = np.array([np.nan if s.get("t") is None else s["t"] for s in steps], dtype=float)
-    return t, arr("x", n, "n"), arr("u", m, "m")[:-1]
+    return t, arr("x", n, "n"), arr("u", m, "m")[:-1], log.warning
 
 
 def _read_run(f: Path, fmt: str, n: int, m: int):
@@ -238,7 +239,7 @@ def _read_run(f: Path, fmt: str, n: int, m: int):
             raise DataError(f"{f}: rows have {data.shape[1]} cells, the header {len(header)}")
         u = data[:-1, 1 + n:] if len(header) > 1 + n else None
         return data[:, 0], data[:, 1:1 + n], u
-    return _read_mcap(f, n, m)
+    return _read_mcap(f, n, m)[:3]
 
 
 def _check_time(f: Path, t: np.ndarray, dt: float) -> None:
@@ -320,9 +321,12 @@ def read_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
                  system_name=system_name or "recorded",
                  u=u, fx=fx)
     n_pad = int(sum(T1 - s[0] for s in shapes))
+    warnings = [s[2] for s in shapes if s[2]]
     report = DataReport(n_traj=len(files), n_samples=int(valid.size), n_pairs=ds.n_pairs,
                         n_masked_samples=int((~valid).sum()), n_dropped_traj=n_dropped, filter=flt, region=region,
-                        source=f"{len(files)} {formats[0]} file(s) at {path}", n_nan_samples=n_nan,
+                        source=f"{len(files)} {formats[0]} file(s) at {path}" + (
+                            f" ({len(warnings)} log(s) cut short or unfinished: {warnings[0]})" if warnings else ""),
+                        n_nan_samples=n_nan,
                         n_padded_samples=n_pad, digest=digest.hexdigest()[:20])
     object.__setattr__(ds, "report", report)
     return ds
