@@ -35,11 +35,21 @@ class DataReport:
     n_dropped_traj: int
     filter: str
     region: str
+    source: str = "simulated"        # or "<N> npz file(s) at <path>" (kexp.data.files)
+    n_nan_samples: int = 0           # recorded rows with NaN in x or u (masked, part of n_masked_samples)
+    n_padded_samples: int = 0        # masked samples padding shorter recorded runs (part of n_masked_samples)
+    digest: str = ""                 # of the recorded files' bytes ("" for simulated data)
 
     def lines(self) -> list[str]:
-        return [f"trajectories: {self.n_traj} ({self.n_dropped_traj} dropped by the filter)",
-                f"samples: {self.n_samples} ({self.n_masked_samples} masked: {self.filter}, region {self.region})",
-                f"snapshot pairs: {self.n_pairs}"]
+        out = [f"trajectories: {self.n_traj} ({self.n_dropped_traj} dropped by the filter)",
+               f"samples: {self.n_samples} ({self.n_masked_samples} masked: {self.filter}, region {self.region})",
+               f"snapshot pairs: {self.n_pairs}"]
+        if self.source != "simulated" and not self.digest:
+            out.insert(0, self.source)
+        elif self.source != "simulated":
+            out.insert(0, f"{self.source} (sha256 {self.digest}); {self.n_nan_samples} NaN row(s) masked, "
+                          f"{self.n_padded_samples} padding sample(s) after shorter runs")
+        return out
 
 
 @dataclass(frozen=True)
