@@ -8,9 +8,9 @@ import typing
 import numpy as np
 from typing import Any, Mapping
 
-from ..data import DataConfig, Excitation, IntegratorOptions, RegionFilter, make_sampler
+from ..data import DataConfig, DataSource, Excitation, IntegratorOptions, RegionFilter, make_sampler
 from ..dictionary import Monomials
-from ..errors import ConfigError
+from ..errors import ConfigError, DataError
 from ..identify import IdentifyConfig, auto_scale
 from ..systems import make_system
 
@@ -92,22 +92,25 @@ def build_system(cfg: Mapping[str, Any]):
 
 
 def build_data(cfg: Mapping[str, Any]):
-    """Returns (sampler, DataConfig)."""
+    """Returns (sampler, DataConfig); the sampler is None for recorded data (``data.source.kind=files``)."""
     cfg = dict(_plain(cfg))
     cfg.pop("noise", None)  # data.noise: applied after collection (build_data_noise, kexp.data.noise)
     sampler_cfg = dict(cfg.pop("sampler", None) or {})
-    if "kind" not in sampler_cfg:
-        raise ConfigError("data.sampler.kind is missing; valid: circle, box, points")
-    kind = sampler_cfg.pop("kind")
-    # the schema holds every sampler's parameters: those left null are not this sampler's (or take its default)
-    sampler = make_sampler(kind, **{k: v for k, v in sampler_cfg.items() if v is not None})
+    source = construct(DataSource, cfg.pop("source", None), "data.source")
+    sampler = None
+    if source.kind == "simulate":
+        if "kind" not in sampler_cfg:
+            raise ConfigError("data.sampler.kind is missing; valid: circle, box, points")
+        kind = sampler_cfg.pop("kind")
+        # the schema holds every sampler's parameters: those left null are not this sampler's (or its default)
+        sampler = make_sampler(kind, **{k: v for k, v in sampler_cfg.items() if v is not None})
     exc = cfg.pop("excitation", None)
     flt = cfg.pop("filter", None)
     integ = cfg.pop("integrator", None)
     data = construct(DataConfig, cfg, "data",
                      excitation=None if exc is None else construct(Excitation, exc, "data.excitation"),
                      filter=construct(RegionFilter, flt, "data.filter"),
-                     integrator=construct(IntegratorOptions, integ, "data.integrator"))
+                     integrator=construct(IntegratorOptions, integ, "data.integrator"), source=source)
     return sampler, data
 
 
@@ -145,6 +148,25 @@ def build_plant(system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, Any]):
         return nominal, {name: getattr(nominal, name) for name in valid}
     plant = make_system(settings["name"], {**settings["params"], **overrides})
     return plant, {name: getattr(plant, name) for name in valid}
+
+
+def read_data_files(system, data_cfg: DataConfig):
+    """The Dataset of the recorded runs ``data_cfg.source`` names, for ``system`` (checks: kexp.data.files)."""
+    from ..data.files import read_runs
+    src = data_cfg.source
+    return read_runs(src.path, n=system.n, m=system.m, dt=data_cfg.dt, format=src.format, pair_rule=data_cfg.pairs,
+                     system_name=system.name, drift=system.drift, region_filter=data_cfg.filter,
+                     x_eq=system.equilibrium)
+
+
+def check_file_data(dataset, ident_cfg, dictionary_size: int) -> None:
+    """Too few usable pairs in recorded data for the dictionary (the same rule as :func:`check_data_budget`)."""
+    train, _ = dataset.split(ident_cfg.holdout, ident_cfg.holdout_seed)
+    if train.n_pairs < 2 * dictionary_size:
+        raise DataError(f"recorded data gives {train.n_pairs} usable training pairs ({dataset.n_pairs} in all, "
+                          f"{dataset.n_traj} runs, identification.holdout={ident_cfg.holdout}) for "
+                          f"{dictionary_size} dictionary functions: need at least {2 * dictionary_size}; add runs "
+                          "or lower dictionary.degree")
 
 
 def build_dictionary(cfg: Mapping[str, Any], n: int, dataset=None) -> Monomials:

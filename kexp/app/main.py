@@ -16,6 +16,7 @@ from threadpoolctl import threadpool_limits
 from ..clf.levelset import level_set_boundary
 from ..data import collect
 from ..data.noise import add_measurement_noise, data_rms
+from ..data.files import bounds as data_bounds
 from ..errors import ConfigError, KexpError
 from ..identify import identify
 from ..recording.schema import plain
@@ -25,8 +26,8 @@ from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
                     build_data_noise, build_identification, build_logging, build_plant, build_sim, build_system,
-                    check_data_budget,
-                    check_memory_budget, dictionary_size, system_settings)
+                    check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
+                    system_settings)
 from .cache import Cache, clf_key, model_key
 from .lock import lock_info
 from .progress import Progress
@@ -117,22 +118,28 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     system = build_system(cfg_dict["system"])
     sampler, data_cfg = build_data(cfg["data"])
     ident_cfg = build_identification(cfg["identification"])
+    # recorded runs (data.source.kind=files) are read and checked now; their bounding box is the data region
+    file_data = read_data_files(system, data_cfg) if data_cfg.source.kind == "files" else None
     clf_cfg = build_clf(cfg["clf"])
     data_noise = build_data_noise(cfg["data"], system.n)
-    sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt, sampler)
+    sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt,
+                                       sampler if file_data is None else data_bounds(file_data))
     plant, plant_params = build_plant(cfg_dict["system"], cfg["sim"])
     log_cfg = build_logging(cfg.get("logging") or {})
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
     cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))
     k_max = dictionary_size(cfg["dictionary"], system.n)
-    check_data_budget(sampler, data_cfg, ident_cfg, k_max)
+    if file_data is None:
+        check_data_budget(sampler, data_cfg, ident_cfg, k_max)
+    else:
+        check_file_data(file_data, ident_cfg, k_max)
     check_memory_budget(spec, k_max, system.m)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
 
     def identify_now():
-        dataset = collect(system, sampler, data_cfg)
+        dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
         rms = data_rms(dataset, system.equilibrium)
         dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium)
         model = identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
@@ -142,7 +149,9 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
             dataset.report.noise_std)
         return model
 
-    mkey = model_key(cfg_dict, FORMAT_VERSION)
+    # recorded data: the files' content (not only their path) determines the model
+    mkey = model_key(cfg_dict if file_data is None else {
+        **cfg_dict, "data": {**cfg_dict["data"], "files_digest": file_data.report.digest}}, FORMAT_VERSION)
     model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
                                 KoopmanBilinearModel.load)
     model_path = model.save(out_dir / "model.npz")

@@ -1,7 +1,10 @@
-from .collect import DataConfig, Excitation, RegionFilter, collect
+from .collect import DataConfig, RegionFilter, collect
+from .excitation import EXCITATION_KINDS, Excitation
 from .dataset import DataReport, Dataset
+from .files import DataBounds, DataSource, read_runs, write_runs
 from .integrate import IntegrationFailure, IntegratorOptions, integrate
 from .samplers import SAMPLERS, Box, Circle, Points, make_sampler
 
 __all__ = ["DataConfig", "Excitation", "RegionFilter", "collect", "DataReport", "Dataset", "IntegrationFailure",
-           "IntegratorOptions", "integrate", "SAMPLERS", "Box", "Circle", "Points", "make_sampler"]
+           "IntegratorOptions", "integrate", "SAMPLERS", "Box", "Circle", "Points", "make_sampler",
+           "DataBounds", "EXCITATION_KINDS", "DataSource", "read_runs", "write_runs"]

@@ -8,30 +8,9 @@ import numpy as np
 from ..errors import ConfigError, DataError, require_number
 from ..systems.base import ControlAffineSystem
 from .dataset import PAIR_RULES, DataReport, Dataset
+from .excitation import Excitation
+from .files import DataSource
 from .integrate import IntegrationFailure, IntegratorOptions, integrate
-
-
-@dataclass(frozen=True)
-class Excitation:
-    """Random piecewise-constant input, uniform in [low, high] per input, redrawn every ``hold`` samples."""
-
-    low: float = -1.0
-    high: float = 1.0
-    hold: int = 10
-
-    def __post_init__(self):
-        require_number(self.low, "data.excitation.low")
-        require_number(self.high, "data.excitation.high")
-        require_number(self.hold, "data.excitation.hold", integer=True)
-        if not (np.isfinite(self.low) and np.isfinite(self.high) and self.low < self.high):
-            raise ConfigError(f"data.excitation: need finite low < high, got {self.low}, {self.high}")
-        if self.hold < 1:
-            raise ConfigError(f"data.excitation.hold={self.hold}: use an int >= 1")
-
-    def draw(self, n_traj: int, n_steps: int, m: int, rng) -> np.ndarray:
-        n_blocks = -(-n_steps // self.hold)
-        u = rng.uniform(self.low, self.high, (n_traj, n_blocks, m))
-        return np.repeat(u, self.hold, axis=1)[:, :n_steps]
 
 
 @dataclass(frozen=True)
@@ -79,7 +58,9 @@ class RegionFilter:
 
 @dataclass(frozen=True)
 class DataConfig:
-    """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``."""
+    """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``.  ``source`` says
+    whether the data is simulated (collect(), the default) or read from recorded runs (kexp.data.files; then
+    ``dt`` must equal the files' sample spacing, and ``T``, the sampler and ``excitation`` do not apply)."""
 
     T: float = 10.0
     dt: float = 0.01
@@ -88,6 +69,7 @@ class DataConfig:
     excitation: Excitation | None = None
     filter: RegionFilter = field(default_factory=RegionFilter)
     integrator: IntegratorOptions = field(default_factory=IntegratorOptions)
+    source: DataSource = field(default_factory=DataSource)
 
     def __post_init__(self):
         require_number(self.dt, "data.dt")
@@ -99,6 +81,11 @@ class DataConfig:
             raise ConfigError(f"data.T={self.T}: the duration must be >= dt={self.dt}")
         if self.pairs not in PAIR_RULES:
             raise ConfigError(f"data.pairs={self.pairs!r}; valid: {PAIR_RULES}")
+        if self.excitation is not None:
+            self.excitation.check(self.dt)
+        if self.source.kind == "files" and self.excitation is not None:
+            raise ConfigError("data.excitation applies to simulated data; recorded runs bring their own u "
+                              "(set data.excitation=null with data.source.kind=files)")
 
     @property
     def n_steps(self) -> int:
@@ -114,7 +101,7 @@ def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfi
     u = None
     if config.excitation is not None:
         rng = np.random.default_rng([config.seed, 1])
-        u = config.excitation.draw(x0.shape[0], config.n_steps, system.m, rng)
+        u = config.excitation.draw(x0.shape[0], config.n_steps, system.m, rng, dt=config.dt)
     try:
         x = integrate(system, x0, t, u, config.integrator)
     except IntegrationFailure as exc:
@@ -138,6 +125,9 @@ def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfi
     report = DataReport(n_traj=int(x0.shape[0]), n_samples=int(valid.size), n_pairs=ds.n_pairs,
                         n_masked_samples=int((~valid).sum()), n_dropped_traj=n_dropped,
                         filter=config.filter.mode if config.filter.active else "none",
-                        region=config.filter.describe(system.n))
+                        region=config.filter.describe(system.n),
+                        source="simulated" if config.excitation is None else
+                        f"simulated, {config.excitation.n_excited(int(x0.shape[0]))} of {int(x0.shape[0])} "
+                        f"trajectories excited ({config.excitation.kind})")
     object.__setattr__(ds, "report", report)
     return ds

@@ -35,12 +35,21 @@ class DataReport:
     n_dropped_traj: int
     filter: str
     region: str
+    source: str = "simulated"        # or "<N> npz file(s) at <path>" (kexp.data.files)
+    n_nan_samples: int = 0           # recorded rows with NaN in x or u (masked, part of n_masked_samples)
+    n_padded_samples: int = 0        # masked samples padding shorter recorded runs (part of n_masked_samples)
+    digest: str = ""                 # of the recorded files' bytes ("" for simulated data)
     noise_std: tuple | None = None   # σ per state of the measurement noise added (kexp.data.noise); None: none
 
     def lines(self) -> list[str]:
         out = [f"trajectories: {self.n_traj} ({self.n_dropped_traj} dropped by the filter)",
                f"samples: {self.n_samples} ({self.n_masked_samples} masked: {self.filter}, region {self.region})",
                f"snapshot pairs: {self.n_pairs}"]
+        if self.source != "simulated" and not self.digest:
+            out.insert(0, self.source)
+        elif self.source != "simulated":
+            out.insert(0, f"{self.source} (sha256 {self.digest}); {self.n_nan_samples} NaN row(s) masked, "
+                          f"{self.n_padded_samples} padding sample(s) after shorter runs")
         if self.noise_std is not None:
             out.append("measurement noise σ per state: [" + ", ".join(f"{s:.4g}" for s in self.noise_std) + "]")
         return out
@@ -102,10 +111,19 @@ class Dataset:
     def n_pairs(self) -> int:
         return int(self.pair_mask().sum())
 
-    def iter_pairs(self, chunk_size: int = 20000) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """Yield (X, Y) chunks of at most ``chunk_size`` snapshot pairs, each (rows, n); memory O(chunk_size)."""
+    def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False
+                   ) -> Iterator[tuple[np.ndarray, ...]]:
+        """Yield (X, Y) chunks of at most ``chunk_size`` snapshot pairs, each (rows, n); memory O(chunk_size).
+        ``with_inputs``: (X, U, Y) with U (rows, m) the input held over each pair (zeros for unforced runs of a
+        dataset with inputs; needs 'next' pairs and a dataset with ``u``)."""
         if chunk_size < 1:
             raise ConfigError(f"chunk_size={chunk_size}: use an int >= 1")
+        if with_inputs and (self.u is None or self.pair_rule != "next"):
+            raise DataError("pairs with inputs need next-sample pairs (data.pairs=next) of a dataset with inputs")
+        if with_inputs:
+            for X, U, Y in self._iter_triples(chunk_size):
+                yield X, U, Y
+            return
         mask = self.pair_mask()
         bx, by, count = [], [], 0
         for i in range(self.n_traj):
@@ -126,6 +144,24 @@ class Dataset:
                     bx, by, count = [], [], 0
         if count:
             yield np.concatenate(bx), np.concatenate(by)
+
+    def _iter_triples(self, chunk_size: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        mask = self.pair_mask()
+        parts, count = [], 0
+        for i in range(self.n_traj):
+            k = np.flatnonzero(mask[i])
+            start = 0
+            while start < k.size:
+                take = min(chunk_size - count, k.size - start)
+                kk = k[start:start + take]
+                parts.append((self.x[i, kk], self.u[i, kk], self.x[i, kk + 1]))
+                count += take
+                start += take
+                if count == chunk_size:
+                    yield tuple(np.concatenate(c) for c in zip(*parts))
+                    parts, count = [], 0
+        if count:
+            yield tuple(np.concatenate(c) for c in zip(*parts))
 
     def valid_samples(self) -> np.ndarray:
         """All kept samples, (n_valid, n)."""

@@ -20,7 +20,11 @@ from .edmd import METHODS, fit_least_squares
 from .eigen import IdentificationWarning, eigenfunctions
 from .model import KoopmanBilinearModel
 from .projection import input_matrices, output_matrix_exact, output_matrix_lstsq
+from .regression import fit_bilinear
 from .quality import eigenfunction_residuals, prediction_error
+
+
+INPUT_METHODS = ("projection", "regression")
 
 
 @dataclass(frozen=True)
@@ -33,6 +37,10 @@ class IdentifyConfig:
     constant eigenfunction is never a coordinate).  max_residual: drop eigenfunctions whose relative residual
     over ``residual_horizon`` seconds exceeds this.  holdout: fraction of trajectories held out for the quality
     report (and the residual ranking).  prediction_horizon: seconds, for the long prediction error.
+    inputs: how B_i, b_i are found — 'projection' (of L_GᵢΨ, needs the system's G; unforced data) or
+    'regression' (from forced data, G never evaluated; see regression.py).  input_degree: degree of the input
+    monomials in the regression (3: the slope is exact to (Δ‖B‖)³).  compare_projection: with regression, also
+    project with the system's G on the same eigen-coordinates and report the relative differences.
     """
 
     method: str = "qr"
@@ -45,6 +53,9 @@ class IdentifyConfig:
     holdout: float = 0.2
     holdout_seed: int = 0
     prediction_horizon: float = 1.0
+    inputs: str = "projection"
+    input_degree: int = 3
+    compare_projection: bool = False
 
     def __post_init__(self):
         for key in ("rcond", "residual_horizon", "prediction_horizon", "holdout"):
@@ -66,6 +77,20 @@ class IdentifyConfig:
             raise ConfigError("identification.residual_horizon and prediction_horizon must be > 0 seconds")
         if not 0 <= self.holdout < 1:
             raise ConfigError(f"identification.holdout={self.holdout}: use a fraction in [0, 1)")
+        if self.inputs not in INPUT_METHODS:
+            raise ConfigError(f"identification.inputs={self.inputs!r}; valid: {INPUT_METHODS}")
+        require_number(self.input_degree, "identification.input_degree", integer=True)
+        if not 1 <= self.input_degree <= 5:
+            raise ConfigError(f"identification.input_degree={self.input_degree}: use an int in 1..5")
+
+
+def _unforced_part(dataset: Dataset) -> Dataset:
+    """The trajectories run without input, if a forced dataset has any (eigenfunction residuals measure the
+    unforced evolution); else the dataset itself (then the residuals include the input's effect)."""
+    if not dataset.forced:
+        return dataset
+    idle = ~np.any(dataset.u != 0, axis=(1, 2))
+    return dataset.subset(np.flatnonzero(idle)) if idle.any() else dataset
 
 
 def auto_scale(dataset: Dataset) -> tuple[float, ...]:
@@ -96,20 +121,34 @@ def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomial
              config: IdentifyConfig = IdentifyConfig()) -> KoopmanBilinearModel:
     """Identify the bilinear Koopman model of ``system`` from the unforced ``dataset``.
 
-    F is used only through the data; G_i (the input fields) are taken from ``system`` for B_i, b_i.  BLAS runs on
+    F is used only through the data.  With ``config.inputs='projection'`` G_i (the input fields) are taken from
+    ``system`` for B_i, b_i and the data must be unforced; with 'regression' B_i, b_i are regressed from forced
+    data and G is never evaluated (only ``system.n``, ``m``, ``equilibrium`` and names are read).  BLAS runs on
     one thread here, so the model is the same whatever OPENBLAS_NUM_THREADS is (tested).
     """
-    if dataset.forced:
+    regress = config.inputs == "regression"
+    if regress and not dataset.forced:
+        raise DataError("identification.inputs=regression needs forced data: collect under an input excitation "
+                        "(data.excitation) or read recorded (t, x, u) runs")
+    if regress and dataset.pair_rule != "next":
+        raise ConfigError("identification.inputs=regression needs next-sample pairs: set data.pairs=next")
+    if not regress and dataset.forced:
         raise DataError("identify() fits the drift from unforced data, but this dataset was collected under an "
-                        "excitation input; set data.excitation=null")
+                        "excitation input; set data.excitation=null, or identification.inputs=regression to "
+                        "regress B and b from the forced data")
     if dictionary.n != system.n or dataset.n != system.n:
         raise ConfigError(f"dimension mismatch: system n={system.n}, dictionary n={dictionary.n}, data n={dataset.n}")
     train, test = dataset.split(config.holdout, config.holdout_seed)
     quality_data = test if test is not None else train
     lie = lambda X: dictionary.lie(X, system.input_matrix(X))  # noqa: E731
-    fit = fit_least_squares(train.iter_pairs(config.chunk_size), dictionary.lift, lie_inputs=lie, m=system.m,
-                            method=config.method, rcond=config.rcond,
-                            add_constant=dictionary.constant_index is None)
+    if regress:
+        fit = fit_bilinear(train.iter_pairs(config.chunk_size, with_inputs=True), dictionary.lift, m=system.m,
+                           degree=config.input_degree, method=config.method, rcond=config.rcond,
+                           add_constant=dictionary.constant_index is None)
+    else:
+        fit = fit_least_squares(train.iter_pairs(config.chunk_size), dictionary.lift, lie_inputs=lie, m=system.m,
+                                method=config.method, rcond=config.rcond,
+                                add_constant=dictionary.constant_index is None)
     if fit.n_pairs < 2 * dictionary.size:
         raise DataError(f"{fit.n_pairs} training pairs for {dictionary.size} dictionary functions: collect at least "
                         f"{2 * dictionary.size} (more trajectories or a longer duration) or lower the degree")
@@ -120,11 +159,21 @@ def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomial
                              constant_index=dictionary.constant_index, on_invalid=config.on_invalid)
     notes = [str(w.message) for w in caught]
     h_res = max(1, int(round(config.residual_horizon / dataset.dt)))
-    residual = eigenfunction_residuals(quality_data, dictionary.lift, eig.T, eig.eigenvalues, eig.block, h_res)
+    residual = eigenfunction_residuals(_unforced_part(quality_data), dictionary.lift, eig.T, eig.eigenvalues,
+                                       eig.block, h_res)
     keep = _select(eig, residual, config)
     x_eq = np.asarray(system.equilibrium, dtype=float)
     psi0_full = dictionary.lift(x_eq)[0] @ eig.T
-    B, b, g_resid = input_matrices(fit, eig.T, keep, eig.constant, psi0_full)
+    B, b, g_resid = input_matrices(fit, eig.T, keep, eig.constant, psi0_full,
+                                   lie_targets=fit.lie_targets(dataset.dt) if regress else None)
+    versus_projection = None
+    if regress and config.compare_projection:   # a diagnostic where G is known: never used by the model
+        pfit = fit_least_squares(train.iter_pairs(config.chunk_size), dictionary.lift, lie_inputs=lie, m=system.m,
+                                 method=config.method, rcond=config.rcond,
+                                 add_constant=dictionary.constant_index is None)
+        Bp, bp, _ = input_matrices(pfit, eig.T, keep, eig.constant, psi0_full)
+        scale = max(float(np.hypot(np.linalg.norm(Bp), np.linalg.norm(bp))), 1e-300)   # B can be 0 (b carries u)
+        versus_projection = {"B": float(np.linalg.norm(B - Bp)) / scale, "b": float(np.linalg.norm(b - bp)) / scale}
     all_kept = keep.size + (eig.constant >= 0) == eig.k and eig.k == dictionary.size
     scale = np.ones(system.n) if dictionary.scale is None else np.asarray(dictionary.scale)
     if all_kept:
@@ -147,8 +196,12 @@ def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomial
         "rank": fit.rank,
         "dictionary_size": dictionary.size,
         "k_fit_residual": fit.relative_residual(0),
+        "inputs": config.inputs,
         "input_projection_residual": g_resid.tolist(),
-        "dictionary_lie_residual": [fit.relative_residual(1 + i) for i in range(system.m)],
+        "dictionary_lie_residual": None if regress else [fit.relative_residual(1 + i) for i in range(system.m)],
+        "input_regression_residual": fit.relative_residual(0) if regress else None,
+        "input_degree": config.input_degree if regress else None,
+        "input_vs_projection": versus_projection,
         "output_fit_residual": c_resid,
         "constant_eigenfunction": bool(eig.constant >= 0),
         "eigvec_cond": eig.eigvec_cond,
@@ -164,6 +217,12 @@ def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomial
         discrete=eig.discrete[keep], block=eig.block[keep], residual=residual[keep], drift=drift,
         dictionary=dictionary, dt=dataset.dt, system=system.name, state_names=tuple(system.state_names),
         report=report)
+    if versus_projection is not None:   # the input's effect on ẋ as each model sees it, over the training states
+        xs = train.valid_samples()
+        Z = model.lift(xs[:: max(1, len(xs) // 5000)])
+        d = np.stack([(Z @ (B[i] - Bp[i]).T + (b[i] - bp[i])) @ C.T for i in range(system.m)])
+        ref = np.stack([(Z @ Bp[i].T + bp[i]) @ C.T for i in range(system.m)])
+        versus_projection["field_x"] = float(np.linalg.norm(d) / max(np.linalg.norm(ref), 1e-300))
     h_pred = max(1, int(round(config.prediction_horizon / dataset.dt)))
     report["prediction_error"] = {"1_step": prediction_error(model, quality_data, 1),
                                   f"{config.prediction_horizon:g}_s": prediction_error(model, quality_data, h_pred)}

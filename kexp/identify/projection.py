@@ -12,10 +12,13 @@ import numpy as np
 from .edmd import LeastSquaresFit
 
 
-def input_matrices(fit: LeastSquaresFit, T: np.ndarray, keep: np.ndarray, constant: int, psi0: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def input_matrices(fit: LeastSquaresFit, T: np.ndarray, keep: np.ndarray, constant: int, psi0: np.ndarray,
+                   lie_targets: list[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Returns B (m, k, k), b (m, k) and the relative projection residual per input (m,) over the data,
-    which measures how far Assumption 1 fails for this dictionary and these eigenfunctions."""
+    which measures how far Assumption 1 fails for this dictionary and these eigenfunctions.  ``lie_targets``:
+    the Lie derivatives of φ per input in the fit's R coordinates when they come from a regression
+    (regression.BilinearFit.lie_targets; they lie in span[φ, 1] by construction); default: the fit's own
+    columns computed from G."""
     keep = np.asarray(keep)
     proj = keep if constant < 0 else np.append(keep, constant)
     ts, tp = T[:, keep], T[:, proj]
@@ -27,13 +30,13 @@ def input_matrices(fit: LeastSquaresFit, T: np.ndarray, keep: np.ndarray, consta
     lhs = fit.r_ext @ tpe
     Bs, bs, res = [], [], []
     for i in range(fit.m):
-        target_in = fit.inside(1 + i, extended=True) @ ts
+        target_in = (fit.inside(1 + i, extended=True) if lie_targets is None else lie_targets[i]) @ ts
         coef = fit.solve(lhs, target_in)  # (|S'| + e, |S|) = [B'ᵀ; cᵀ]
         bprime = coef[: proj.size].T
         Bs.append(bprime[:, : keep.size])
         bs.append(bprime @ psi0[proj] + (coef[-1] if e else 0.0))
         miss_in = np.linalg.norm(target_in - lhs @ coef)
-        miss_out = np.linalg.norm(fit.outside(1 + i, extended=True) @ ts)
+        miss_out = 0.0 if lie_targets is not None else np.linalg.norm(fit.outside(1 + i, extended=True) @ ts)
         total = np.hypot(np.linalg.norm(target_in), miss_out)
         res.append(np.hypot(miss_in, miss_out) / total if total > 0 else 0.0)
     k = keep.size

@@ -49,13 +49,19 @@ def eigenfunction_residuals(dataset: Dataset, lift_full, T: np.ndarray, eigenval
     return out
 
 
-def prediction_error(model, dataset: Dataset, h: int) -> float:
-    """Relative error of the model's unforced h-step prediction x̂(t+hΔ) = x_eq + C·e^{ΛhΔ} z(x(t))."""
-    ti, si = windows(dataset, h)
+def prediction_error(model, dataset: Dataset, h: int, max_forced_windows: int = 500) -> float:
+    """Relative error of the model's h-step prediction: unforced x̂(t+hΔ) = x_eq + C·e^{ΛhΔ} z(x(t)), or, for
+    a forced dataset, under the recorded inputs held over each sample (at most ``max_forced_windows``)."""
+    ti, si = windows(dataset, h, max_forced_windows if dataset.forced else 20000)
     if ti.size == 0:
         return float("nan")
     z0 = model.lift(dataset.x[ti, si])
-    zh = model.free_response(z0, h)[-1]
+    if dataset.forced:
+        zh = z0
+        for j in range(h):
+            zh = model.step_batch(zh, dataset.u[ti, si + j], substeps=2)
+    else:
+        zh = model.free_response(z0, h)[-1]
     xh = model.to_state(zh)
     truth = dataset.x[ti, si + h]
     denom = np.linalg.norm(truth - model.x_eq)

@@ -26,9 +26,17 @@ def model_summary(model) -> str:
         lines.append(f"eigenfunctions: kept {r['kept']}, dropped {r['dropped']}, constant eigenfunction "
                      f"{'found (carries the input into b)' if r['constant_eigenfunction'] else 'none'}, "
                      f"eigenvector condition {r['eigvec_cond']:.2e}")
+        if r.get("inputs") == "regression":
+            vp = r.get("input_vs_projection")
+            lines.append(f"inputs: B, b regressed from forced data (input monomials to degree {r['input_degree']}; G "
+                         f"not used), lifted next-state residual {r['input_regression_residual']:.2e}"
+                         + (f"; vs projection with the true G: |ΔB| {vp['B']:.2e}, |Δb| {vp['b']:.2e}, input field in x "
+                              f"{vp['field_x']:.2e} (relative)"
+                            if vp else ""))
         lines.append("Assumption 1 (L_G Ψ = BΨ) relative residual: "
                      + ", ".join(f"{v:.2e}" for v in r["input_projection_residual"])
-                     + "  (dictionary-level: " + ", ".join(f"{v:.2e}" for v in r["dictionary_lie_residual"]) + ")")
+                     + ("  (dictionary-level: " + ", ".join(f"{v:.2e}" for v in r["dictionary_lie_residual"]) + ")"
+                        if r.get("dictionary_lie_residual") else ""))
         lines.append(f"drift dropped at the equilibrium: |ΛΨ(x_eq)| = {r['drift_at_equilibrium']:.3e} "
                      f"(in x: {r['drift_at_equilibrium_x']:.3e})")
         pe = r.get("prediction_error", {})

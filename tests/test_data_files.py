@@ -1,0 +1,207 @@
+"""Data from files (issue 12, item 1): recorded runs (NPZ, CSV, kexp's run.mcap) -> Dataset, and back."""
+import subprocess
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kexp.data import Circle, DataConfig, Excitation, RegionFilter, collect, read_runs, write_runs
+from kexp.dictionary import Monomials
+from kexp.errors import DataError
+from kexp.identify import IdentifyConfig, identify
+from kexp.recording import read_log
+from kexp.systems import make_system
+
+ROOT = Path(__file__).resolve().parents[1]
+VDP = make_system("vanderpol", {})
+
+
+@pytest.fixture(scope="module")
+def small():
+    # a mask filter leaves masked samples inside runs: they travel as NaN rows and come back masked
+    return collect(VDP, Circle(8, 2.0), DataConfig(T=2.0, filter=RegionFilter(low=-2.2, high=2.2)))
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+def test_round_trip_gives_the_same_model(small, fmt, tmp_path):
+    assert (~small.valid).sum() > 0  # the filter masked some samples
+    paths = write_runs(small, tmp_path, fmt)
+    assert len(paths) == 8 and all(p.suffix == f".{fmt}" for p in paths)
+    back = read_runs(tmp_path, n=2, m=1, dt=0.01, system_name="vanderpol")
+    # trailing masked samples are not written: compare on the common length, the rest is masked padding
+    T1 = back.x.shape[1]
+    assert np.array_equal(back.valid, small.valid[:, :T1]) and not small.valid[:, T1:].any()
+    assert np.array_equal(back.x[back.valid], small.x[:, :T1][small.valid[:, :T1]])
+    assert back.u is None and back.n_pairs == small.n_pairs
+    assert back.report.n_nan_samples + back.report.n_padded_samples == back.report.n_masked_samples
+    cfg = IdentifyConfig()
+    a, b = identify(VDP, small, Monomials(2, 3), cfg), identify(VDP, back, Monomials(2, 3), cfg)
+    for name in ("Lambda", "B", "b", "C"):
+        assert np.allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12), name
+    assert np.max(np.abs(a.eigenvalues - b.eigenvalues)) < 1e-12
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+def test_forced_round_trip_gives_the_same_regressed_model(fmt, tmp_path):
+    """Inputs travel too: PRBS on half the runs (the others u = 0), B and b regressed from the data."""
+    ds = collect(VDP, Circle(8, 2.0), DataConfig(T=2.0, excitation=Excitation(kind="prbs", hold=5, fraction=0.5)))
+    write_runs(ds, tmp_path, fmt)
+    back = read_runs(tmp_path, n=2, m=1, dt=0.01)
+    assert np.array_equal(back.u, ds.u) and int(np.any(back.u != 0, axis=(1, 2)).sum()) == 4
+    cfg = IdentifyConfig(inputs="regression")
+    a, b = identify(VDP, ds, Monomials(2, 3), cfg), identify(VDP, back, Monomials(2, 3), cfg)
+    for name in ("Lambda", "B", "b", "C"):
+        assert np.allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-12), name
+
+
+def test_runs_of_different_lengths_are_padded_and_masked(tmp_path):
+    rng = np.random.default_rng(0)
+    lengths = [5, 12, 8]
+    for i, L in enumerate(lengths):
+        np.savez(tmp_path / f"r{i}.npz", t=1.0 + np.arange(L) * 0.1, x=rng.normal(size=(L, 2)),
+                 **({"u": rng.normal(size=(L - 1, 1))} if i == 1 else {}))
+    ds = read_runs(tmp_path, n=2, m=1, dt=0.1)
+    assert ds.x.shape == (3, 12, 2) and ds.u.shape == (3, 11, 1)
+    assert ds.valid.sum(axis=1).tolist() == lengths
+    assert ds.n_pairs == sum(L - 1 for L in lengths) == 22
+    assert ds.report.n_padded_samples == 7 + 0 + 4 and ds.report.n_nan_samples == 0
+    assert np.all(ds.u[0] == 0) and np.all(ds.u[2] == 0) and ds.forced  # runs without u: u = 0
+    assert np.allclose(ds.t, np.arange(12) * 0.1)  # each run's time relative to its first sample
+
+
+def test_region_filter_applies_to_recorded_runs(tmp_path):
+    x = np.column_stack([np.linspace(-1, 1, 21), np.zeros(21)])  # x1 from -1 to 1 in steps of 0.1
+    np.savez(tmp_path / "a.npz", t=np.arange(21) * 0.01, x=x)
+    ds = read_runs(tmp_path, n=2, m=1, dt=0.01, region_filter=RegionFilter(low=-0.45, high=0.45), x_eq=[0.0, 0.0])
+    assert ds.valid[0].sum() == 9 and ds.report.n_masked_samples == 12 and ds.report.filter == "mask"
+    assert ds.n_pairs == 8
+    with pytest.raises(DataError, match="the filter removed every sample"):  # mode drop: the run leaves it
+        read_runs(tmp_path, n=2, m=1, dt=0.01, x_eq=[0.0, 0.0],
+                  region_filter=RegionFilter(low=-0.45, high=0.45, mode="drop"))
+
+
+def test_nan_rows_are_masked_and_counted(tmp_path):
+    x = np.column_stack([np.linspace(0, 1, 11), np.linspace(1, 2, 11)])
+    x[3, 1] = np.nan
+    x[7] = np.nan
+    u = np.zeros((10, 1))
+    u[9, 0] = np.nan  # the input of the last pair
+    np.savez(tmp_path / "a.npz", t=np.arange(11) * 0.01, x=x, u=u)
+    ds = read_runs(tmp_path / "a.npz", n=2, m=1, dt=0.01)
+    assert np.flatnonzero(~ds.valid[0]).tolist() == [3, 7, 9]
+    assert ds.report.n_nan_samples == 3 and ds.report.n_masked_samples == 3
+    assert ds.n_pairs == 10 - 6  # pairs 2,3 / 6,7 / 8,9 lose a sample
+    assert "3 NaN row(s) masked" in ds.report.lines()[0]
+    assert np.all(np.isfinite(ds.u))
+
+
+def test_mcap_log_of_a_kexp_run_is_data():
+    path = ROOT / "recordings" / "paper_vanderpol.mcap"
+    steps = read_log(path).messages("/step")
+    ds = read_runs(path, n=2, m=1, dt=0.01, system_name="vanderpol")
+    assert ds.x.shape == (1, len(steps), 2) == (1, 200, 2) and ds.u.shape == (1, 199, 1)
+    assert np.array_equal(ds.x[0], [s["x"] for s in steps])
+    assert np.array_equal(ds.u[0, :, 0], [s["u"][0] for s in steps[:-1]])
+    assert ds.forced and ds.n_pairs == 199 and ds.report.source.startswith("1 mcap file(s)")
+    # closed-loop data identifies a model (B, b regressed from the logged inputs)
+    model = identify(VDP, ds, Monomials(2, 2), IdentifyConfig(inputs="regression", holdout=0))
+    assert model.k == 6 and model.report["n_pairs_train"] == 199
+    assert np.all(np.isfinite(model.B)) and np.all(np.isfinite(model.b))
+    with pytest.raises(DataError, match="recorded with system 'vanderpol', but system.name='pendulum'"):
+        read_runs(path, n=2, m=1, dt=0.01, system_name="pendulum")
+
+
+def test_a_cut_mcap_log_gives_its_steps_and_says_so(tmp_path):
+    data = (ROOT / "recordings" / "paper_vanderpol.mcap").read_bytes()
+    cut = tmp_path / "run.mcap"
+    cut.write_bytes(data[:int(0.6 * len(data))])
+    ds = read_runs(cut, n=2, m=1, dt=0.01)
+    full = read_runs(ROOT / "recordings" / "paper_vanderpol.mcap", n=2, m=1, dt=0.01)
+    T1 = ds.x.shape[1]
+    assert 2 <= T1 < 200 and np.array_equal(ds.x[0], full.x[0, :T1])
+    assert "1 log(s) cut short or unfinished: run.mcap is truncated" in ds.report.lines()[0]
+
+
+def test_reading_streams_one_file_at_a_time(tmp_path):
+    """Memory beyond the Dataset: the reader allocates the Dataset's arrays once and fills them file by file;
+    stacking the runs instead (list of arrays, then np.stack, then the Dataset's copy) peaks at about 3× x."""
+    ds = collect(VDP, Circle(40, 2.0), DataConfig(T=20.0))
+    write_runs(ds, tmp_path, "npz")
+    x_bytes = ds.x.nbytes  # 40 × 2001 × 2 floats = 1.28 MB
+    tracemalloc.start()
+    back = read_runs(tmp_path, n=2, m=1, dt=0.01)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert back.x.nbytes == x_bytes
+    # x allocated once + the Dataset's own read-only copy + masks + one file: measured 2.39× (stacking: 3.19×)
+    assert peak < 2.7 * x_bytes, peak / x_bytes
+
+
+def test_ragged_csv_row_and_digest(tmp_path):
+    _csv(tmp_path / "a.csv", ["t", "x1", "x2"], [[0.0, 1.0, 2.0], [0.01, 1.0], [0.02, 1.0, 2.0]])
+    with pytest.raises(DataError, match="data row 2 has 2 cells, the header 3"):
+        read_runs(tmp_path, n=2, m=1, dt=0.01)
+    # the digest (part of the model cache key) follows the files' content, not only their path
+    _csv(tmp_path / "a.csv", ["t", "x1", "x2"], [[0.0, 1.0, 2.0], [0.01, 1.0, 2.5], [0.02, 1.0, 2.0]])
+    d1 = read_runs(tmp_path, n=2, m=1, dt=0.01).report.digest
+    _csv(tmp_path / "a.csv", ["t", "x1", "x2"], [[0.0, 1.0, 2.0], [0.01, 1.0, 2.6], [0.02, 1.0, 2.0]])
+    d2 = read_runs(tmp_path, n=2, m=1, dt=0.01).report.digest
+    assert len(d1) == 20 and d1 != d2
+
+
+def _csv(path, header, rows):
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
+
+
+def _good_rows(L=30, dt=0.01):
+    return [[k * dt, 0.5 + 0.01 * k, -0.5] for k in range(L)]
+
+
+def _bad_files(tmp: Path):
+    """(name, path to pass as data.source.path, extra overrides, fragment of the one-line message)."""
+    cases = []
+    d = tmp / "missing_col"; d.mkdir()
+    _csv(d / "a.csv", ["t", "x1"], [[r[0], r[1]] for r in _good_rows()])
+    cases.append(("csv missing state column", d, [], "1 state column(s) ['x1'], but the system has n=2"))
+    d = tmp / "extra_col"; d.mkdir()
+    _csv(d / "a.csv", ["t", "x1", "x2", "speed"], [r + [0] for r in _good_rows()])
+    cases.append(("csv extra column", d, [], "extra column(s) ['speed']"))
+    d = tmp / "npz_missing"; d.mkdir()
+    np.savez(d / "a.npz", t=np.arange(30) * 0.01)
+    cases.append(("npz missing x", d, [], "missing array(s) ['x']"))
+    d = tmp / "npz_extra"; d.mkdir()
+    np.savez(d / "a.npz", t=np.arange(30) * 0.01, x=np.zeros((30, 2)), y=np.zeros(3))
+    cases.append(("npz extra array", d, [], "extra array(s) ['y']"))
+    d = tmp / "npz_dim"; d.mkdir()
+    np.savez(d / "a.npz", t=np.arange(30) * 0.01, x=np.zeros((30, 3)))
+    cases.append(("state dimension", d, [], "x has 3 state column(s), but the system has n=2"))
+    d = tmp / "irregular"; d.mkdir()
+    rows = _good_rows()
+    rows[10][0] += 0.004
+    _csv(d / "a.csv", ["t", "x1", "x2"], rows)
+    cases.append(("irregular t", d, [], "irregular or mismatched sampling: t[10] - t[9] = 0.014"))
+    d = tmp / "other_dt"; d.mkdir()
+    _csv(d / "a.csv", ["t", "x1", "x2"], _good_rows(dt=0.02))
+    cases.append(("dt of the files differs", d, [], "set data.dt=0.02"))
+    d = tmp / "few"; d.mkdir()
+    _csv(d / "a.csv", ["t", "x1", "x2"], _good_rows(L=12))
+    cases.append(("too few pairs", d, [], "recorded data gives 11 usable training pairs"))
+    d = tmp / "allnan"; d.mkdir()
+    _csv(d / "a.csv", ["t", "x1", "x2"], [[r[0], "nan", "nan"] for r in _good_rows()])
+    cases.append(("no finite sample", d, [], "no sample has finite x"))
+    cases.append(("path does not exist", tmp / "nope", [], "does not exist"))
+    return cases
+
+
+def test_every_file_error_is_one_line_with_exit_code_2(tmp_path):
+    """Through the `kexp` CLI (the schema accepts data.source.*), each in its own process."""
+    for name, path, extra, fragment in _bad_files(tmp_path):
+        proc = subprocess.run(
+            ["kexp", "data.source.kind=files", f"data.source.path={path}", "dictionary.degree=3",
+             "identification.holdout=0", "sim.allow_outside_data=true", "logging.rrd=false", "logging.progress=false", "cache.enabled=false",
+             f"hydra.run.dir={tmp_path / 'out'}", *extra], capture_output=True, text=True, timeout=120)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2, (name, proc.stderr[-2000:])
+        assert len(lines) == 1 and "Traceback" not in proc.stderr, (name, proc.stderr[-2000:])
+        assert lines[0].startswith("kexp: error: ") and fragment in lines[0], (name, lines[0])
