@@ -265,3 +265,15 @@ def test_closed_loop_gives_the_controller_only_the_measured_state():
     assert np.array_equal(seen[:, 1], x[:, 1])                   # σ = 0 for x2: measured exactly
     with pytest.raises(ConfigError, match=r"noise\.relative=true needs the data's RMS per state: pass it"):
         closed_loop(make_system("vanderpol"), spy, [0.7, -0.5], SimConfig(T=0.1, noise=NoiseConfig(std=0.01)))
+
+
+def test_data_noise_applies_to_recorded_data_too(tmp_path):
+    from kexp.data import write_runs
+    clean = collect(make_system("vanderpol"), Circle(n_traj=20, radius=2.5), DataConfig(T=3.0))
+    write_runs(clean, tmp_path / "runs", "npz")
+    summary = run(_cfg(["data.source.kind=files", f"data.source.path={tmp_path / 'runs'}", "data.noise.std=0.02",
+                        "data.noise.seed=4", "sim.T=0.1", "cache.enabled=false"]), tmp_path / "out",
+                  echo=lambda *_: None)
+    rms = data_rms(clean)
+    np.testing.assert_allclose(summary["noise"]["data_rms"], rms, rtol=1e-12)
+    np.testing.assert_allclose(summary["noise"]["data_noise_std"], 0.02 * rms, rtol=1e-12)
