@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 
 from kexp.app import golden
-from kexp.recording import diff_logs, read_log
+from kexp.recording import copy_log, diff_logs
 from kexp.recording.diff import main as diff_main
-from kexp.recording.writer import RunLogger
 
 GOLDEN = golden.RECORDINGS / "paper_pendulum.mcap"   # the worst-conditioned shipped case: cond(Phi_X) = 1.5e6
 
@@ -84,16 +83,6 @@ def test_golden_policy_holds_under_another_blas_kernel(tmp_path, default_runs, c
     assert max(res.usage.values()) < 0.1, res.usage
 
 
-def _rewrite(src: Path, dst: Path, edit) -> None:
-    log = read_log(src)
-    lg = RunLogger(dst)
-    for topic, msgs in log.channels.items():
-        for t_ns, payload in msgs:
-            edit(topic, payload)
-            lg.write(topic, t_ns / 1e9, payload)
-    lg.close()
-
-
 def _change_basis(seed: int):
     """An edit that re-expresses the model in other eigen-coordinates z' = S z (S random, well conditioned):
     Λ' = SΛS⁻¹, B' = SBS⁻¹, b' = Sb, C' = CS⁻¹, P' = S⁻ᵀPS⁻¹.  The model does exactly the same."""
@@ -121,7 +110,7 @@ def _change_basis(seed: int):
 
 def test_portable_compares_the_model_by_what_it_does(tmp_path):
     moved = tmp_path / "basis.mcap"
-    _rewrite(GOLDEN, moved, _change_basis(0))
+    copy_log(GOLDEN, moved, _change_basis(0))
     exact = diff_logs(GOLDEN, moved)
     assert not exact.equal and exact.first.channel == "/model" and exact.first.field.startswith("B")
     res = diff_logs(GOLDEN, moved, policy="portable")
@@ -137,7 +126,7 @@ def test_portable_compares_the_model_by_what_it_does(tmp_path):
             i = np.unravel_index(np.argmax(np.abs(B[0])), B[0].shape)
             B[0][i] += 1e-3 * np.abs(B).max()
             p["B"] = B.tolist()
-    _rewrite(GOLDEN, wrong, perturb)
+    copy_log(GOLDEN, wrong, perturb)
     res = diff_logs(GOLDEN, wrong, policy="portable")
     assert not res.equal and res.first.channel == "/model" and res.first.field.startswith("prediction"), res.report()
 
@@ -147,7 +136,7 @@ def test_portable_compares_the_model_by_what_it_does(tmp_path):
     def shift(topic, p):
         if topic == "/model":
             p["eigenvalues_re"][3] += 1e-4
-    _rewrite(GOLDEN, moved_eig, shift)
+    copy_log(GOLDEN, moved_eig, shift)
     res = diff_logs(GOLDEN, moved_eig, policy="portable")
     assert not res.equal and res.first.field == "eigenvalues (as a set)", res.report()
 
@@ -168,7 +157,7 @@ def test_portable_compares_the_model_by_what_it_does(tmp_path):
 ])
 def test_portable_catches_real_changes(tmp_path, edit, channel, field):
     changed = tmp_path / "changed.mcap"
-    _rewrite(GOLDEN, changed, edit)
+    copy_log(GOLDEN, changed, edit)
     res = diff_logs(GOLDEN, changed, policy="portable")
     assert not res.equal and (res.first.channel, res.first.field) == (channel, field), res.report()
 
@@ -180,7 +169,7 @@ def test_portable_tolerates_rounding_but_exact_does_not(tmp_path):
         if t == "/step":
             p["u"] = [v * (1 + 1e-12) for v in p["u"]]
             p["V"] *= 1 + 1e-12
-    _rewrite(GOLDEN, changed, edit)
+    copy_log(GOLDEN, changed, edit)
     assert not diff_logs(GOLDEN, changed).equal
     assert diff_logs(GOLDEN, changed, policy="portable").equal
 

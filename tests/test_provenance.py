@@ -8,7 +8,7 @@ from hydra import compose, initialize_config_dir
 
 from kexp.app.lock import lock_info
 from kexp.app.main import CONF_DIR, run
-from kexp.recording import read_log
+from kexp.recording import copy_log, read_log
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
@@ -37,16 +37,8 @@ def test_summary_and_run_info_record_the_repositorys_lock(small_run):
 
 
 def _copy_with_run_info(src: Path, dst: Path, edit) -> None:
-    """Rewrite a log message by message, letting ``edit(run_info)`` change the /run_info payload."""
-    from kexp.recording.writer import RunLogger
-    log = read_log(src)
-    lg = RunLogger(dst)
-    for topic, msgs in log.channels.items():
-        for t_ns, payload in msgs:
-            if topic == "/run_info":
-                edit(payload)
-            lg.write(topic, t_ns / 1e9, payload)
-    lg.close()
+    """Rewrite a log, letting ``edit(run_info)`` change the /run_info payload."""
+    copy_log(src, dst, lambda topic, payload: edit(payload) if topic == "/run_info" else None)
 
 
 def test_diff_warns_when_logs_come_from_different_versions_but_still_exits_0(small_run, tmp_path, capsys):

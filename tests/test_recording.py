@@ -8,10 +8,9 @@ from hydra import compose, initialize_config_dir
 
 from kexp.app import golden
 from kexp.app.main import CONF_DIR, run
-from kexp.recording import diff_logs, read_log
+from kexp.recording import copy_log, diff_logs, read_log
 from kexp.recording.diff import main as diff_main
 from kexp.recording.schema import _DUMPS, encode, plain
-from kexp.recording.writer import RunLogger
 
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=1.0", "clf.grid=11", "logging.rrd=false", "logging.progress=false",
@@ -52,17 +51,6 @@ def test_encoder_writes_the_values_the_standard_library_would():
     assert encode({"b": 1, "a": 2}) == b'{"a":2,"b":1}'     # sorted keys, compact
 
 
-def _copy_with(src: Path, dst: Path, edit) -> None:
-    """Rewrite a log message by message, letting ``edit(topic, payload)`` change payloads in place."""
-    log = read_log(src)
-    lg = RunLogger(dst)
-    for topic, msgs in log.channels.items():
-        for t_ns, payload in msgs:
-            edit(topic, payload)
-            lg.write(topic, t_ns / 1e9, payload)
-    lg.close()
-
-
 def test_log_holds_every_step_and_the_run_facts(two_runs):
     log = read_log(two_runs[0])
     steps = log.messages("/step")
@@ -98,7 +86,7 @@ def test_a_changed_input_is_reported_at_its_step_and_field(two_runs, tmp_path):
     def edit(topic, payload):
         if topic == "/step" and payload["k"] == 57:
             payload["u"][0] += 1e-3
-    _copy_with(two_runs[0], changed, edit)
+    copy_log(two_runs[0], changed, edit)
     res = diff_logs(two_runs[0], changed)
     assert not res.equal
     f = res.first
@@ -123,7 +111,7 @@ def test_truncated_log_still_reads_and_diffs_with_a_warning(two_runs, tmp_path):
 def test_cli_exit_codes(two_runs, tmp_path, capsys):
     assert diff_main([str(two_runs[0]), str(two_runs[1])]) == 0
     changed = tmp_path / "c.mcap"
-    _copy_with(two_runs[0], changed, lambda t, p: p.update(V=p["V"] * 2) if t == "/step" and p["k"] == 3 else None)
+    copy_log(two_runs[0], changed, lambda t, p: p.update(V=p["V"] * 2) if t == "/step" and p["k"] == 3 else None)
     assert diff_main([str(two_runs[0]), str(changed)]) == 1
     out = capsys.readouterr().out
     assert "channel /step, step 3" in out and "field V" in out

@@ -6,9 +6,8 @@ import pytest
 
 from kexp import testing
 from kexp.app import golden
-from kexp.recording import read_log
+from kexp.recording import copy_log
 from kexp.recording.policy import POLICIES
-from kexp.recording.writer import RunLogger
 
 pytest_plugins = "pytester"
 
@@ -18,16 +17,6 @@ USER_TEST = """
 def test_mine(kexp_golden):
     kexp_golden.check("runs/run1", "pendulum_run")
 """
-
-
-def _edited(src, dst, edit):
-    log = read_log(src)
-    lg = RunLogger(dst)
-    for topic, msgs in log.channels.items():
-        for t_ns, payload in msgs:
-            edit(topic, payload)
-            lg.write(topic, t_ns / 1e9, payload)
-    lg.close()
 
 
 @pytest.fixture
@@ -57,7 +46,7 @@ def test_missing_golden_is_written_then_the_test_passes(project):
 def test_a_changed_run_fails_with_its_first_divergence(project):
     project.runpytest()                                     # writes the golden
     run = project.path / "runs" / "run1" / "run.mcap"
-    _edited(RUN, run, lambda t, p: p["u"].__setitem__(0, p["u"][0] - 0.01) if t == "/step" and p["k"] == 57 else None)
+    copy_log(RUN, run, lambda t, p: p["u"].__setitem__(0, p["u"][0] - 0.01) if t == "/step" and p["k"] == 57 else None)
     res = project.runpytest()
     res.assert_outcomes(failed=1)
     res.stdout.fnmatch_lines(["*differs from golden*(portable policy)*",
@@ -70,7 +59,7 @@ def test_a_changed_run_fails_with_its_first_divergence(project):
 def test_regen_rewrites_the_golden_and_fails_once(project):
     project.runpytest()
     run = project.path / "runs" / "run1" / "run.mcap"
-    _edited(RUN, run, lambda t, p: p.update(V=p["V"] * 2) if t == "/step" and p["k"] == 3 else None)
+    copy_log(RUN, run, lambda t, p: p.update(V=p["V"] * 2) if t == "/step" and p["k"] == 3 else None)
     project.runpytest().assert_outcomes(failed=1)
     regen = project.runpytest("--kexp-regen")
     regen.assert_outcomes(failed=1)
@@ -82,7 +71,7 @@ def test_regen_rewrites_the_golden_and_fails_once(project):
 def test_rounding_passes_portable_and_fails_exact(project):
     project.runpytest()
     run = project.path / "runs" / "run1" / "run.mcap"
-    _edited(RUN, run, lambda t, p: p.update(V=p["V"] * (1 + 1e-13)) if t == "/step" else None)
+    copy_log(RUN, run, lambda t, p: p.update(V=p["V"] * (1 + 1e-13)) if t == "/step" else None)
     project.runpytest().assert_outcomes(passed=1)
     project.makepyfile(test_user=USER_TEST.replace('"pendulum_run")', '"pendulum_run", policy="exact")'))
     project.runpytest().assert_outcomes(failed=1)

@@ -76,8 +76,30 @@ class _StreamedGram:
         raise DataError("the Gram matrix is not positive definite even with jitter; use identification.method=qr")
 
 
+class TriangularFacts:
+    """What follows from a fit's triangular factor: the leading block ``r11`` (N×N, r11ᵀr11 = Φ_XᵀΦ_X) and
+    ``rcond`` give Φ_X's singular values, condition number and numerical rank, and the truncated solve."""
+
+    def singular_values(self) -> np.ndarray:
+        return sla.svdvals(self.r11)
+
+    @property
+    def cond(self) -> float:
+        sv = self.singular_values()
+        return float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+
+    @property
+    def rank(self) -> int:
+        sv = self.singular_values()
+        return int(np.sum(sv > self.rcond * sv[0]))
+
+    def solve(self, lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """Least squares min ‖lhs·X − rhs‖ with the fit's rcond (lhs, rhs in R coordinates)."""
+        return sla.lstsq(lhs, rhs, cond=self.rcond, check_finite=False)[0]
+
+
 @dataclass(frozen=True)
-class LeastSquaresFit:
+class LeastSquaresFit(TriangularFacts):
     """Triangular factor of [Φ_X | Φ_Y | Lφ_1 … Lφ_m] and what follows from it.  ``R`` is (W, W) with
     W = N(2 + m); ``rcond`` truncates singular values of Φ_X below rcond·σ_max."""
 
@@ -113,23 +135,6 @@ class LeastSquaresFit:
         """The part of target block j orthogonal to span(Φ_X) (or span[Φ_X, 1])."""
         rows = self.N + (self.n_extra if extended else 0)
         return self.R[rows:, self._block(j)]
-
-    def singular_values(self) -> np.ndarray:
-        return sla.svdvals(self.r11)
-
-    @property
-    def cond(self) -> float:
-        sv = self.singular_values()
-        return float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
-
-    @property
-    def rank(self) -> int:
-        sv = self.singular_values()
-        return int(np.sum(sv > self.rcond * sv[0]))
-
-    def solve(self, lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        """Least squares min ‖lhs·X − rhs‖ with the fit's rcond (lhs, rhs in R coordinates)."""
-        return sla.lstsq(lhs, rhs, cond=self.rcond, check_finite=False)[0]
 
     @property
     def K(self) -> np.ndarray:

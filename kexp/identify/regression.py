@@ -26,7 +26,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import ConfigError, DataError
-from .edmd import METHODS, _StreamedGram, _StreamedQR
+from .edmd import METHODS, TriangularFacts, _StreamedGram, _StreamedQR
 
 
 def input_monomials(m: int, degree: int) -> tuple[tuple[int, ...], ...]:
@@ -40,7 +40,7 @@ def input_monomials(m: int, degree: int) -> tuple[tuple[int, ...], ...]:
 
 
 @dataclass(frozen=True)
-class BilinearFit:
+class BilinearFit(TriangularFacts):
     """Triangular factor of [φ̄(X) | u^α φ̄(X) … | φ(Y)] (one row per pair) and what follows from it.  Offers
     what identification reads from an EDMD fit (``K``, ``r11``, ``r_ext``, ``solve``, ``cond``, ``rank``,
     ``n_pairs``, ``relative_residual(0)``) plus the regressed input generators (``lie_targets``)."""
@@ -70,22 +70,6 @@ class BilinearFit:
     @property
     def r_ext(self) -> np.ndarray:
         return self.R[: self.n_bar, : self.n_bar]
-
-    def singular_values(self) -> np.ndarray:
-        return sla.svdvals(self.r11)
-
-    @property
-    def cond(self) -> float:
-        sv = self.singular_values()
-        return float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
-
-    @property
-    def rank(self) -> int:
-        sv = self.singular_values()
-        return int(np.sum(sv > self.rcond * sv[0]))
-
-    def solve(self, lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        return sla.lstsq(lhs, rhs, cond=self.rcond, check_finite=False)[0]
 
     @cached_property
     def coef(self) -> np.ndarray:

@@ -118,3 +118,18 @@ class RunLogger:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def copy_log(src: str | Path, dst: str | Path, edit=None) -> Path:
+    """Rewrite the run log ``src`` to ``dst`` message by message (same channels, log times and order), letting
+    ``edit(topic, payload)`` change each payload in place first: for tests of diffing and replay against a known
+    change (a perturbed input at one step, another model basis, other package versions).  Returns ``dst``."""
+    from .reader import read_log
+    log = read_log(src)
+    with RunLogger(dst) as out:
+        for topic, msgs in log.channels.items():
+            for t_ns, payload in msgs:
+                if edit is not None:
+                    edit(topic, payload)
+                out.write(topic, t_ns / 1e9, payload)
+    return Path(dst)
