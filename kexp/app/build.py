@@ -131,13 +131,13 @@ def build_data_noise(cfg: Mapping[str, Any], n: int):
     return build_noise(dict(_plain(cfg)).get("noise"), "data.noise", n)
 
 
-def build_plant(system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, Any]):
-    """(plant, params): the system the closed loop runs on — the configured system with ``sim.plant_params``
-    overriding its parameters (plant mismatch: the data and the identification keep the nominal system) — and
-    the plant's parameters as used.  An unknown parameter name is a ConfigError naming the valid ones."""
+def build_plant(nominal, system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, Any]):
+    """(plant, params): the system the closed loop runs on — the configured system ``nominal`` (built by
+    :func:`build_system` from ``system_cfg``) with ``sim.plant_params`` overriding its parameters (plant mismatch:
+    the data and the identification keep the nominal system) — and the plant's parameters as used.  An unknown
+    parameter name is a ConfigError naming the valid ones."""
     settings = system_settings(system_cfg)
     overrides = dict(_plain(dict(_plain(sim_cfg)).get("plant_params")) or {})
-    nominal = make_system(settings["name"], settings["params"])
     valid = sorted(f.name for f in dataclasses.fields(nominal) if f.init) if dataclasses.is_dataclass(nominal) \
         else []
     for key in overrides:

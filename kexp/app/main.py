@@ -124,7 +124,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     data_noise = build_data_noise(cfg["data"], system.n)
     sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt,
                                        sampler if file_data is None else data_bounds(file_data))
-    plant, plant_params = build_plant(cfg_dict["system"], cfg["sim"])
+    plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
     log_cfg = build_logging(cfg.get("logging") or {})
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
@@ -332,19 +332,31 @@ def _precheck(argv: list[str]) -> None:
         return _precheck_sweep(argv)
     if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
         return
+    _compose_or_exit(argv, only_yaml=False)
+
+
+def _compose_or_exit(overrides: list[str], *, only_yaml: bool) -> None:
+    """Compose the config with ``overrides``; a preset or group file that is not YAML, and (unless ``only_yaml``)
+    any composition error, is one line on stderr and exit code 2.  With ``only_yaml`` other errors are left to
+    Hydra, which composes every job of a sweep and reports them itself."""
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
     from yaml import YAMLError
     try:
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-            compose(config_name="config", overrides=argv)
+            compose(config_name="config", overrides=overrides)
     except YAMLError as exc:  # a preset or group file that is not YAML
         print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
+        if only_yaml:
+            return
         print(f"kexp: error: {composition_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
+    except Exception:  # noqa: BLE001 - only_yaml=False re-raises: a bug, not bad input
+        if not only_yaml:
+            raise
 
 
 def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -388,8 +400,10 @@ def _precheck_sweep(argv: list[str]) -> None:
         overrides = OverridesParser.create().parse_overrides([a for a in argv if not a.startswith("-")])
     except HydraException:
         return  # a syntax error: Hydra's own message names it
-    _precheck_files([a for a, ov in zip([a for a in argv if not a.startswith("-")], overrides)
-                     if not ov.is_sweep_override()])
+    # a preset or group file that is not YAML stops a sweep with a traceback: compose once with the overrides
+    # that are not sweeps and report only that
+    _compose_or_exit([a for a, ov in zip([a for a in argv if not a.startswith("-")], overrides)
+                      if not ov.is_sweep_override()], only_yaml=True)
     from .schema import filled
     schema = filled(_register_schema())
     for ov in overrides:
@@ -407,21 +421,6 @@ def _precheck_sweep(argv: list[str]) -> None:
                 wrapped.__cause__ = exc
                 print(f"kexp: error: {composition_error_line(wrapped)}", file=sys.stderr)
                 sys.exit(2)
-
-
-def _precheck_files(overrides: list[str]) -> None:
-    """A preset or group file that is not YAML stops a sweep with a traceback: compose once with the overrides
-    that are not sweeps and report only that, in one line, exit code 2 (anything else is left to Hydra)."""
-    from hydra import compose, initialize_config_dir
-    from yaml import YAMLError
-    try:
-        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-            compose(config_name="config", overrides=overrides)
-    except YAMLError as exc:
-        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
-        sys.exit(2)
-    except Exception:  # noqa: BLE001 - Hydra composes every job and reports the rest
-        return
 
 
 def main() -> None:

@@ -27,6 +27,21 @@ def _check_std(std: Any, where: str) -> None:
             raise ConfigError(f"{where}={std!r}: use a finite number >= 0 (or one per state), e.g. {where}=0.01")
 
 
+def _std_active(std: Any) -> bool:
+    """True if a std (a number or a tuple of them) is > 0 anywhere."""
+    return any(v > 0 for v in (std if isinstance(std, tuple) else (std,)))
+
+
+def _std_vector(std: Any, n: int, where: str, per: str) -> np.ndarray:
+    """A std given as one number or ``n`` numbers (one per ``per``), as an (n,) array; otherwise a ConfigError
+    naming ``where``."""
+    arr = np.asarray(std, float).reshape(-1)
+    if arr.size not in (1, n):
+        raise ConfigError(f"{where}={list(std) if isinstance(std, tuple) else std}: give one number or {n} "
+                          f"(one per {per})")
+    return np.broadcast_to(arr, (n,)).astype(float)
+
+
 @dataclass(frozen=True)
 class NoiseConfig:
     """Measurement noise (frozen): ``std`` a number >= 0 or one per state (a list); ``relative`` true: a fraction
@@ -48,14 +63,11 @@ class NoiseConfig:
 
     @property
     def active(self) -> bool:
-        return any(v > 0 for v in (self.std if isinstance(self.std, tuple) else (self.std,)))
+        return _std_active(self.std)
 
     def sigma(self, n: int, rms: np.ndarray | None = None) -> np.ndarray:
         """The absolute standard deviation per state, (n,).  ``rms`` (n,) is needed when ``relative``."""
-        std = np.asarray(self.std, float)
-        if std.ndim == 1 and std.size not in (1, n):
-            raise ConfigError(f"noise.std={list(self.std)}: give one number or {n} (one per state)")
-        std = np.broadcast_to(std.reshape(-1)[0] if std.size == 1 else std, (n,)).astype(float)
+        std = _std_vector(self.std, n, "noise.std", "state")
         if not self.relative:
             return std
         if rms is None:

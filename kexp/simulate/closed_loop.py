@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
-from ..data.noise import NoiseConfig, _check_std
+from ..data.noise import NoiseConfig, _check_std, _std_active, _std_vector
 from ..errors import ConfigError, require_number
 
 
@@ -38,13 +38,11 @@ class Disturbance:
 
     @property
     def active(self) -> bool:
-        return any(v > 0 for v in (self.std if isinstance(self.std, tuple) else (self.std,)))
+        return _std_active(self.std)
 
     def sigma(self, m: int) -> np.ndarray:
-        std = np.asarray(self.std, float).reshape(-1)
-        if std.size not in (1, m):
-            raise ConfigError(f"sim.disturbance.std={list(std)}: give one number or {m} (one per input)")
-        return np.broadcast_to(std, (m,)).astype(float)
+        """The standard deviation per input, (m,)."""
+        return _std_vector(self.std, m, "sim.disturbance.std", "input")
 
 
 @dataclass(frozen=True)
