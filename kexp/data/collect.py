@@ -49,6 +49,18 @@ class RegionFilter:
         lo, hi = self._bounds(dx.shape[-1])
         return np.all((dx >= lo) & (dx <= hi), axis=-1)
 
+    def apply(self, x: np.ndarray, valid: np.ndarray, u: np.ndarray | None, x_eq
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int]:
+        """(x, valid, u, number of trajectories dropped) after the filter: ``mask`` keeps only the valid samples
+        inside the region valid; ``drop`` removes every trajectory with a valid sample outside it.  x (n_traj,
+        T+1, n), valid (n_traj, T+1), u (n_traj, T, m) or None; samples already invalid are not evaluated."""
+        inside = np.zeros_like(valid)
+        inside[valid] = self.inside(x[valid] - np.asarray(x_eq, dtype=float))
+        if self.mode == "mask":
+            return x, inside, u, 0
+        keep = np.all(inside | ~valid, axis=1)
+        return x[keep], inside[keep], None if u is None else u[keep], int((~keep).sum())
+
     def describe(self, n) -> str:
         if not self.active:
             return "none"
@@ -109,14 +121,7 @@ def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfi
     valid = np.ones(x.shape[:2], dtype=bool)
     n_dropped = 0
     if config.filter.active:
-        inside = config.filter.inside(x - xe)
-        if config.filter.mode == "mask":
-            valid = inside
-        else:
-            keep = inside.all(axis=1)
-            n_dropped = int((~keep).sum())
-            x, valid = x[keep], inside[keep]
-            u = None if u is None else u[keep]
+        x, valid, u, n_dropped = config.filter.apply(x, valid, u, xe)
     if x.shape[0] == 0 or not valid.any():
         raise DataError("data collection: the filter removed every sample; widen data.filter or move the "
                         "initial conditions inside it")

@@ -298,17 +298,9 @@ def read_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
         valid[i, :t.size] = ok
     n_dropped, flt, region = 0, "none", "none"
     if region_filter is not None and region_filter.active:
-        xe = np.zeros(n) if x_eq is None else np.asarray(x_eq, float)
-        inside = np.zeros_like(valid)
-        inside[valid] = region_filter.inside(x[valid] - xe)
         flt, region = region_filter.mode, region_filter.describe(n)
-        if region_filter.mode == "mask":
-            x = np.where(inside[..., None], x, np.nan)
-        else:
-            keep = np.all(inside | ~valid, axis=1)
-            n_dropped = int((~keep).sum())
-            x, inside, u = x[keep], inside[keep], None if u is None else u[keep]
-        valid = inside
+        x, valid, u, n_dropped = region_filter.apply(x, valid, u, np.zeros(n) if x_eq is None else x_eq)
+        x = np.where(valid[..., None], x, np.nan)   # a recorded run's masked samples read as NaN rows
         if not valid.any():
             raise DataError("recorded data: the filter removed every sample; widen data.filter")
     fx = None
