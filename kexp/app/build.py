@@ -252,7 +252,9 @@ def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
 
 
 def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_every: int = 0):
-    """The controller for a validated spec, an identified model and its CLF."""
+    """The controller for a validated spec, an identified model and its CLF.  ``system`` is what the true-model
+    baselines (kind lqr: the linearisation; kind nmpc: the oracle's model) know: kexp passes the plant the closed
+    loop runs on (``sim.plant_params`` included), so that they stay references under plant mismatch."""
     from ..control import ExplicitController, LqrController, make_law
     from ..control.lmpc import Lmpc
     law = make_law(spec.law, clf.lyap, spec.u_min, spec.u_max, **spec.law_params)

@@ -165,7 +165,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
                                law_params=spec.law_params),
         save_clf, lambda p: load_clf(p, model, clf_cfg))
-    controller = build_controller(spec, system, model, clf,
+    # the true-model baselines (LQR, NMPC oracle) know the plant they control, mismatch included
+    controller = build_controller(spec, plant, model, clf,
                                   prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0)
     echo(clf.summary())
     logger = None
@@ -220,7 +221,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         "controller": getattr(controller, "name", type(controller).__name__),
         "x0": x0.tolist(),
         "metrics": mdict,
-        "model": {"k": model.k, "cond_phi_x": model.report["cond_phi_x"],
+        "model": {"k": model.k, "inputs": model.report.get("inputs", "projection"),
+                  "cond_phi_x": model.report["cond_phi_x"],
                   "prediction_error": model.report["prediction_error"],
                   "input_projection_residual": model.report["input_projection_residual"],
                   "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},

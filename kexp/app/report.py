@@ -186,6 +186,7 @@ def _row(job: Path, root: Path, overrides: list[str] | None, summary: dict | Non
         "solve_p99_ms": None if _num(m.get("solve_time_p99")) is None else m["solve_time_p99"] * 1e3,
         "certificate": _short_verdict(cert), "certificate_verdict": cert.get("verdict"),
         "clf_status": clf.get("status"), "wall_time_s": _num(summary.get("wall_time_s")),
+        **_conditions(summary),
     })
     if not completed:
         if status == "error":  # rejected or failed with a one-line reason (kexp writes it into summary.json)
@@ -197,6 +198,29 @@ def _row(job: Path, root: Path, overrides: list[str] | None, summary: dict | Non
         else:
             row["reason"] = f"status {status!r}" + (f": {summary['message']}" if summary.get("message") else "")
     return row
+
+
+def _relative(std, rms) -> float | None:
+    """The largest σ_i / rms_i (a noise level as a fraction of the data's RMS); 0.0 for no noise."""
+    if std is None:
+        return 0.0
+    if not rms or len(rms) != len(std):
+        return None
+    return float(max(s / r for s, r in zip(std, rms)))
+
+
+def _conditions(summary: dict) -> dict:
+    """What a run was perturbed by, from its summary: ``inputs`` (how B, b were identified: projection on the
+    known G, or regression from forced data), ``data_noise`` and ``sim_noise`` (measurement noise on the data and
+    in the closed loop, as the largest fraction of the data's RMS over the states) and ``mismatch`` ('' or e.g.
+    'mu=1.2': the plant's parameters that differ from the data's system)."""
+    noise = summary.get("noise") or {}
+    rms = noise.get("data_rms")
+    mism = ((summary.get("plant") or {}).get("mismatch")) or {}
+    return {"inputs": (summary.get("model") or {}).get("inputs", "projection"),
+            "data_noise": _relative(noise.get("data_noise_std"), rms),
+            "sim_noise": _relative(noise.get("sim_noise_std"), rms),
+            "mismatch": ";".join(f"{k}={d['plant']:g}" for k, d in sorted(mism.items()))}
 
 
 def _job_folders(root: Path) -> list[Path]:

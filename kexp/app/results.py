@@ -19,7 +19,7 @@ import numpy as np
 from .report import ReportError, aggregate
 
 COLUMNS = ["x0_1", "x0_2", "status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms",
-           "max_abs_u", "fallbacks", "certificate"]
+           "max_abs_u", "fallbacks", "certificate", "inputs", "data_noise", "sim_noise", "mismatch"]
 
 
 def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
@@ -32,7 +32,8 @@ def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
         for r in sorted(rows, key=lambda r: tuple(r["x0"] or [np.inf, np.inf])):
             x0 = r["x0"] or [None, None]
             vals = [x0[0], x0[1], r["status"], r["success"], r["cost"], r["settling_time_s"], r["solve_median_ms"],
-                    r["solve_p99_ms"], r["max_abs_u"], r["fallbacks"], r["certificate"]]
+                    r["solve_p99_ms"], r["max_abs_u"], r["fallbacks"], r["certificate"], r["inputs"],
+                    r["data_noise"], r["sim_noise"], r["mismatch"]]
             w.writerow(["" if v is None else (f"{v:.10g}" if isinstance(v, float) else v) for v in vals])
     return out
 
