@@ -14,6 +14,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 X0=$(python -c "import numpy as np; ics=np.random.default_rng(42).uniform(-1,1,(2,100)).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))")
 JOBS=${KEXP_SWEEP_JOBS:-2}
+mkdir -p sweeps
 
 overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 system=${1%%_*} rest=${1#*_}
@@ -57,5 +58,5 @@ for row in "$@"; do
     echo "== $row: ${ov[*]}"
     kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="$JOBS" logging.rrd=false "sim.x0=$X0" "${ov[@]}" \
         hydra.sweep.dir="sweeps/$row" > "sweeps/$row.log" 2>&1 || true
-    kexp-results collect "sweeps/$row" "$row" -o results
+    kexp-results collect "sweeps/$row" "$row" -o results || echo "== $row: no results (see sweeps/$row.log)"
 done
