@@ -17,6 +17,11 @@ class DataError(KexpError, ValueError):
     """Data cannot support the requested computation (too few samples, non-finite values, ...)."""
 
 
+class ClfError(KexpError, RuntimeError):
+    """No control Lyapunov function: the SDP failed (infeasible, unbounded, or solved too inaccurately to use) or
+    the model's linearisation is not stabilisable (Riccati)."""
+
+
 class ModelFileError(KexpError, OSError):
     """A model file is missing, corrupt, or from another format version."""
 

@@ -257,7 +257,8 @@ def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_eve
     loop runs on (``sim.plant_params`` included), so that they stay references under plant mismatch."""
     from ..control import ExplicitController, LqrController, make_law
     from ..control.lmpc import Lmpc
-    law = make_law(spec.law, clf.lyap, spec.u_min, spec.u_max, **spec.law_params)
+    law = make_law(spec.law, clf.lyap, spec.u_min, spec.u_max, model=model,
+                   weights=(clf.config.q_x, clf.config.r_u), **spec.law_params)
     if spec.kind == "lmpc":
         return Lmpc(model, clf, law, spec.lmpc, spec.u_min, spec.u_max, prediction_every=prediction_every)
     if spec.kind == "explicit":

@@ -13,16 +13,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..errors import ConfigError, KexpError, require_number
+from ..errors import ClfError, ConfigError, require_number
 from .certificate import CertificateReport, check_certificate
 from .lyapunov import QuadraticLyapunov
+from .riccati import model_lqr
 
 SOLVERS = ("CLARABEL", "SCS")
 METHODS = ("sdp", "lqr_x")
-
-
-class ClfError(KexpError, RuntimeError):
-    """The SDP failed (infeasible, unbounded, or solved too inaccurately to use)."""
 
 
 @dataclass(frozen=True)
@@ -135,15 +132,10 @@ def solve_lqr_x(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float
     and x − x_eq ≈ Cz, ẋ ≈ CΛJ·x + Cb·u.  P_x solves the Riccati equation of (CΛJ, Cbᵀ, q_x I, r_u I) and
     V(z) = zᵀ(CᵀP_xC + ε·λ_max I)z ≈ xᵀP_x x near x_eq (ε keeps P positive definite on the directions C does not
     see).  Uses only the identified model (F stays unknown)."""
-    import scipy.linalg as sla
-    J = model.lift_jacobian(model.x_eq[None])[0]          # (k, n)
-    A = model.C @ model.Lambda @ J
-    Bx = model.C @ model.b.T                               # (n, m)
     try:
-        Px = sla.solve_continuous_are(A, Bx, config.q_x * np.eye(model.n), config.r_u * np.eye(model.m))
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise ClfError(f"clf.method=lqr_x: the model's linearisation (A = CΛJ, B = Cb) is not stabilisable "
-                       f"({exc}); use clf.method=sdp or improve the data near the equilibrium") from None
+        Px = model_lqr(model, config.q_x, config.r_u).P
+    except ClfError as exc:
+        raise ClfError(f"clf.method=lqr_x: {exc}") from None
     Pz = model.C.T @ Px @ model.C
     Pz = 0.5 * (Pz + Pz.T) + config.eps * np.linalg.eigvalsh(Px)[-1] * np.eye(model.k)
     return Pz, "riccati", float(np.trace(Px)), float("nan")
@@ -164,7 +156,7 @@ def clf_from_P(model, P, config: ClfConfig = ClfConfig(), *, law="sontag", u_min
     """Wrap a given P (e.g. from another synthesis) with its certificate report."""
     from ..control.laws import make_law
     lyap = QuadraticLyapunov.from_model(model, P)
-    h = make_law(law, lyap, u_min, u_max, **(law_params or {}))
+    h = make_law(law, lyap, u_min, u_max, model=model, weights=(config.q_x, config.r_u), **(law_params or {}))
     report = check_certificate(model, lyap, h, config)
     return Clf(P=lyap.P, lyap=lyap, status=status, solver=config.solver, objective=objective, sigma=sigma,
                certificate=report, config=config)

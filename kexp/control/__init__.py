@@ -1,6 +1,6 @@
-from .laws import LAWS, LieGain, Sontag, make_law
+from .laws import LAWS, LieGain, ModelLqrGain, Sontag, make_law
 
-__all__ = ["LAWS", "LieGain", "Sontag", "make_law"]
+__all__ = ["LAWS", "LieGain", "ModelLqrGain", "Sontag", "make_law"]
 from .explicit import ExplicitController, LqrController, linearise  # noqa: E402
 from .lmpc import ControlStep, Lmpc, LmpcConfig  # noqa: E402
 

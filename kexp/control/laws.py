@@ -4,6 +4,9 @@ Every law maps z (..., k) to u (..., m), always finite and within [u_min, u_max]
 - ``sontag``: Sontag's formula (paper eq. 19), multi-input form
   b(z) = −(a + √(a² + ‖β‖⁴)) / ‖β‖² · β  (0 where β = 0), with a = L_ΛV, β = L_BV; then saturated.
 - ``lie_gain``: h(z) = −k·L_BV(z), saturated (the paper's pendulum law; no decay guarantee).
+- ``model_lqr``: h(z) = −K_x·Cz, saturated: the LQR gain of the identified model's own linearisation (the same
+  Riccati solution as ``clf.method=lqr_x``; Cz ≈ x − x_eq).  No decay guarantee far from x_eq, but it is the law
+  LQR would apply, so the LMPC's (21f) no longer asks for more decrease than LQR gives.
 """
 from __future__ import annotations
 
@@ -83,16 +86,58 @@ class LieGain:
         return np.clip(u, self.u_min, self.u_max)
 
 
-LAWS = {"sontag": Sontag, "lie_gain": LieGain}
+@dataclass(frozen=True, eq=False)
+class ModelLqrGain:
+    """h(z) = −K·z with K (m, k) = K_x·C, saturated to [``u_min``, ``u_max``]: the LQR law of the identified
+    model's linearisation, u = −K_x(x − x_eq) with x − x_eq ≈ Cz.  Build it with :func:`make_law` ('model_lqr',
+    given the model and the Riccati weights) so that K_x is the Riccati solution the lqr_x CLF uses.
+    ``law(z)``: z (..., k) -> u (..., m), finite and within the bounds.  Raises
+    :class:`~kexp.errors.ConfigError` for a K that does not fit ``lyap`` or is not finite."""
+
+    lyap: QuadraticLyapunov
+    u_min: np.ndarray
+    u_max: np.ndarray
+    K: np.ndarray
+
+    name = "model_lqr"
+
+    def __post_init__(self):
+        K = np.array(self.K, dtype=float)
+        k = self.lyap.P.shape[0]
+        if K.shape != (self.lyap.m, k) or not np.all(np.isfinite(K)):
+            raise ConfigError(f"model_lqr law: K must be finite with shape ({self.lyap.m}, {k}), got {K.shape}")
+        K.setflags(write=False)
+        lo, hi = _bounds(self.u_min, self.u_max, self.lyap.m)
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "u_min", lo)
+        object.__setattr__(self, "u_max", hi)
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        u = -(np.asarray(z, dtype=float) @ self.K.T)
+        return np.clip(np.where(np.isfinite(u), u, 0.0), self.u_min, self.u_max)
 
 
-def make_law(name: str, lyap: QuadraticLyapunov, u_min, u_max, **params):
-    """The explicit law ``name`` ('sontag' or 'lie_gain', see :data:`LAWS`) on ``lyap`` with input bounds
-    ``u_min``, ``u_max`` (scalars or (m,)) and the law's own keyword ``params`` (``eps`` for sontag, ``k`` for
-    lie_gain).  Returns a callable z (..., k) -> u (..., m).  Raises :class:`~kexp.errors.ConfigError` for an
-    unknown name or bad parameters."""
+LAWS = {"sontag": Sontag, "lie_gain": LieGain, "model_lqr": ModelLqrGain}
+
+
+def make_law(name: str, lyap: QuadraticLyapunov, u_min, u_max, *, model=None, weights=(1.0, 1.0), **params):
+    """The explicit law ``name`` ('sontag', 'lie_gain' or 'model_lqr', see :data:`LAWS`) on ``lyap`` with input
+    bounds ``u_min``, ``u_max`` (scalars or (m,)) and the law's own keyword ``params`` (``eps`` for sontag, ``k``
+    for lie_gain).  'model_lqr' needs the identified ``model`` and the Riccati ``weights`` (q_x, r_u) — pass the
+    CLF config's, so that the gain comes from the same Riccati solution as the lqr_x CLF.  Returns a callable
+    z (..., k) -> u (..., m).  Raises :class:`~kexp.errors.ConfigError` for an unknown name or bad parameters and
+    :class:`~kexp.errors.ClfError` when the model's linearisation is not stabilisable."""
     if name not in LAWS:
         raise ConfigError(f"explicit law {name!r} is unknown; valid: {sorted(LAWS)}")
+    if name == "model_lqr":
+        if params:
+            raise ConfigError(f"law 'model_lqr' takes no law_params (got {params}); its weights are clf.q_x, "
+                              "clf.r_u")
+        if model is None:
+            raise ConfigError("law 'model_lqr' needs the identified model")
+        from ..clf.riccati import model_lqr
+        lqr = model_lqr(model, *weights)
+        return ModelLqrGain(lyap, u_min, u_max, K=lqr.K @ model.C)
     try:
         return LAWS[name](lyap, u_min, u_max, **params)
     except TypeError as exc:
