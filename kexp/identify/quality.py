@@ -1,7 +1,8 @@
 """Measured quality of eigenfunctions and models on trajectories (held-out where available).
 
 Windows: every start sample s of a trajectory with samples s..s+h all valid (subsampled to at most
-``max_windows``, evenly; :func:`kexp.data.runs.window_samples`, streamed run by run).  Errors are relative: sqrt(Σ‖x̂ − x‖²) / sqrt(Σ‖x − x_eq‖²) over all windows.
+``max_windows``, evenly; :func:`kexp.data.runs.window_samples`, streamed run by run).  Errors are relative:
+sqrt(Σ‖x̂ − x‖²) / sqrt(Σ‖x − x_eq‖²) over all windows.
 """
 from __future__ import annotations
 
