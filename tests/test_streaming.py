@@ -47,6 +47,20 @@ def test_streamed_files_give_the_in_memory_model(fmt, forced, tmp_path):
     assert a.report["n_pairs_train"] == b.report["n_pairs_train"] and a.report["data"] == b.report["data"]
 
 
+@pytest.mark.parametrize("pairs,flt", [("euler", RegionFilter(low=-2.0, high=2.0)),
+                                       ("next", RegionFilter(low=-2.0, high=2.0, mode="drop"))])
+def test_streamed_euler_pairs_and_dropped_runs(pairs, flt, tmp_path):
+    """Euler pairs (F evaluated run by run) and the drop filter (8 of 12 runs leave the box) stream the same."""
+    write_runs(collect(VDP, Circle(12, 1.0), DataConfig(T=3.0)), tmp_path, "npz")
+    kw = dict(KW, pair_rule=pairs, drift=VDP.drift, region_filter=flt)
+    mem, src = read_runs(tmp_path, **kw), open_runs(tmp_path, **kw)
+    assert src.report == mem.report and src.n_traj == mem.n_traj == (12 if flt.mode == "mask" else 4)
+    mem, src = (add_measurement_noise(d, 0.02, seed=1, x_eq=VDP.equilibrium) for d in (mem, src))
+    a, b = (identify(VDP, d, Monomials(2, 3), IdentifyConfig(on_invalid="drop")) for d in (mem, src))
+    for name in ("Lambda", "B", "b", "C", "eigenvalues"):
+        assert np.max(np.abs(getattr(a, name) - getattr(b, name))) <= 1e-12, name
+
+
 def _peak(fn):
     tracemalloc.start()
     try:

@@ -52,7 +52,7 @@ def _load(f: Path, fmt: str, n: int, m: int, dt: float, system_name, region_filt
 class RecordedRuns:
     """Recorded runs read file by file (frozen; see the module docstring).  ``files``/``formats`` the kept runs
     (a run dropped by the region filter is left out), ``t_len`` the longest run's T+1 over all files,
-    ``lengths``/``forced_runs``/``pairs_runs`` (n_traj,) per run; ``noise_sigma`` (n,) and ``noise_states``
+    ``forced_runs``/``pairs_runs`` (n_traj,) per run; ``noise_sigma`` (n,) and ``noise_states``
     (one generator state per run) when measurement noise was added.  Build it with :func:`open_runs`."""
 
     files: tuple
@@ -64,7 +64,6 @@ class RecordedRuns:
     system_name: str
     has_inputs: bool
     t_len: int
-    lengths: np.ndarray
     forced_runs: np.ndarray
     pairs_runs: np.ndarray
     report: DataReport
@@ -113,7 +112,7 @@ class RecordedRuns:
     def subset(self, traj) -> "RecordedRuns":
         traj = np.asarray(traj, dtype=int)
         return replace(self, files=tuple(self.files[i] for i in traj), formats=tuple(self.formats[i] for i in traj),
-                       lengths=self.lengths[traj], forced_runs=self.forced_runs[traj],
+                       forced_runs=self.forced_runs[traj],
                        pairs_runs=self.pairs_runs[traj], cached_stats=(),
                        noise_states=None if self.noise_states is None else tuple(self.noise_states[i] for i in traj))
 
@@ -167,7 +166,7 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
     files, formats = list_runs(path, format)
     x_eq = np.zeros(n) if x_eq is None else np.asarray(x_eq, float).reshape(n)
     digest = hashlib.sha256()
-    kept, lengths, all_lengths, forced, pairs, warnings = [], [], [], [], [], []
+    kept, all_lengths, forced, pairs, warnings = [], [], [], [], []
     has_inputs, n_nan, n_dropped = False, 0, 0
     about = (np.zeros(n), x_eq)
     sums = [np.zeros(n), np.zeros(n)]
@@ -187,7 +186,6 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
             n_dropped += 1
             continue
         kept.append(i)
-        lengths.append(x.shape[0])
         forced.append(u is not None and bool(np.any(u != 0)))
         pairs.append(count_pairs(Run(x, ok), pair_rule))
         xs = x[ok]
@@ -212,7 +210,7 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
                   for s, c in zip(sums, about))
     return RecordedRuns(files=tuple(files[i] for i in kept), formats=tuple(formats[i] for i in kept), n=n, m=m,
                         dt=dt, pair_rule=pair_rule, system_name=system_name or "recorded", has_inputs=has_inputs,
-                        t_len=t_len, lengths=np.array(lengths, dtype=np.int64), forced_runs=np.array(forced, bool),
+                        t_len=t_len, forced_runs=np.array(forced, bool),
                         pairs_runs=np.array(pairs, dtype=np.int64), report=report, region_filter=region_filter,
                         x_eq=x_eq, drift=drift, expect_system=system_name, cached_stats=stats)
 
