@@ -151,10 +151,11 @@ def build_plant(nominal, system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, An
 
 
 def read_data_files(system, data_cfg: DataConfig):
-    """The Dataset of the recorded runs ``data_cfg.source`` names, for ``system`` (checks: kexp.data.files)."""
-    from ..data.files import read_runs
+    """The recorded runs ``data_cfg.source`` names, for ``system``, streamed: one pass checks every file and
+    keeps counts, bounds and digest; identification then reads one file at a time (kexp.data.streaming)."""
+    from ..data.streaming import open_runs
     src = data_cfg.source
-    return read_runs(src.path, n=system.n, m=system.m, dt=data_cfg.dt, format=src.format, pair_rule=data_cfg.pairs,
+    return open_runs(src.path, n=system.n, m=system.m, dt=data_cfg.dt, format=src.format, pair_rule=data_cfg.pairs,
                      system_name=system.name, drift=system.drift, region_filter=data_cfg.filter,
                      x_eq=system.equilibrium)
 

@@ -16,7 +16,7 @@ from threadpoolctl import threadpool_limits
 from ..clf.levelset import level_set_boundary
 from ..data import collect
 from ..data.noise import add_measurement_noise, data_rms
-from ..data.files import bounds as data_bounds
+from ..data.streaming import bounds as data_bounds
 from ..errors import ConfigError, KexpError
 from ..identify import identify
 from ..recording.schema import plain

@@ -12,6 +12,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import ConfigError, DataError
+from .runs import Run, SampleStats, pair_chunks, split_indices
 
 PAIR_RULES = ("next", "euler")
 
@@ -111,57 +112,48 @@ class Dataset:
     def n_pairs(self) -> int:
         return int(self.pair_mask().sum())
 
+    @property
+    def has_inputs(self) -> bool:
+        return self.u is not None
+
+    def run_forced(self) -> np.ndarray:
+        """(n_traj,) bool: trajectory i has a nonzero input."""
+        if self.u is None:
+            return np.zeros(self.n_traj, dtype=bool)
+        return np.any(self.u != 0, axis=(1, 2))
+
+    def runs(self) -> Iterator[Run]:
+        """The trajectories one at a time (views, padded to T+1 samples)."""
+        for i in range(self.n_traj):
+            yield Run(self.x[i], self.valid[i], None if self.u is None else self.u[i],
+                      None if self.fx is None else self.fx[i])
+
     def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False
                    ) -> Iterator[tuple[np.ndarray, ...]]:
         """Yield (X, Y) chunks of at most ``chunk_size`` snapshot pairs, each (rows, n); memory O(chunk_size).
         ``with_inputs``: (X, U, Y) with U (rows, m) the input held over each pair (zeros for unforced runs of a
-        dataset with inputs; needs 'next' pairs and a dataset with ``u``)."""
-        if chunk_size < 1:
-            raise ConfigError(f"chunk_size={chunk_size}: use an int >= 1")
-        if with_inputs and (self.u is None or self.pair_rule != "next"):
-            raise DataError("pairs with inputs need next-sample pairs (data.pairs=next) of a dataset with inputs")
-        if with_inputs:
-            for X, U, Y in self._iter_triples(chunk_size):
-                yield X, U, Y
-            return
-        mask = self.pair_mask()
-        bx, by, count = [], [], 0
-        for i in range(self.n_traj):
-            k = np.flatnonzero(mask[i])
-            if k.size == 0:
-                continue
-            xi = self.x[i, k]
-            yi = self.x[i, k + 1] if self.pair_rule == "next" else xi + self.dt * self.fx[i, k]
-            start = 0
-            while start < k.size:
-                take = min(chunk_size - count, k.size - start)
-                bx.append(xi[start:start + take])
-                by.append(yi[start:start + take])
-                count += take
-                start += take
-                if count == chunk_size:
-                    yield np.concatenate(bx), np.concatenate(by)
-                    bx, by, count = [], [], 0
-        if count:
-            yield np.concatenate(bx), np.concatenate(by)
+        dataset with inputs; needs 'next' pairs and a dataset with ``u``).  See :func:`kexp.data.runs.pair_chunks`."""
+        return pair_chunks(self, chunk_size, with_inputs=with_inputs)
 
-    def _iter_triples(self, chunk_size: int) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        mask = self.pair_mask()
-        parts, count = [], 0
-        for i in range(self.n_traj):
-            k = np.flatnonzero(mask[i])
-            start = 0
-            while start < k.size:
-                take = min(chunk_size - count, k.size - start)
-                kk = k[start:start + take]
-                parts.append((self.x[i, kk], self.u[i, kk], self.x[i, kk + 1]))
-                count += take
-                start += take
-                if count == chunk_size:
-                    yield tuple(np.concatenate(c) for c in zip(*parts))
-                    parts, count = [], 0
-        if count:
-            yield tuple(np.concatenate(c) for c in zip(*parts))
+    def stats(self, center=None) -> SampleStats:
+        """:class:`~kexp.data.runs.SampleStats` of the kept, finite samples (Σ(x − center)² about ``center``)."""
+        xs = self.valid_samples()
+        xs = xs[np.all(np.isfinite(xs), axis=1)]
+        c = np.zeros(self.n) if center is None else np.asarray(center, float).reshape(self.n)
+        if xs.shape[0] == 0:
+            return SampleStats(0, np.full(self.n, np.inf), np.full(self.n, -np.inf), np.zeros(self.n),
+                               np.zeros(self.n), c)
+        return SampleStats(count=xs.shape[0], low=xs.min(axis=0), high=xs.max(axis=0),
+                           absmax=np.abs(xs).max(axis=0), sumsq=np.sum((xs - c) ** 2, axis=0), center=c)
+
+    def with_noise(self, sigma: np.ndarray, seed: int) -> "Dataset":
+        """x + σ·N(0, 1) drawn from ``default_rng(seed)`` over x's shape (n_traj, T+1, n) in C order; the
+        report's ``noise_std`` is σ (n,)."""
+        noisy = self.x + np.random.default_rng(seed).standard_normal(self.x.shape) * sigma
+        report = self.report or DataReport(
+            n_traj=self.n_traj, n_samples=int(self.valid.size), n_pairs=self.n_pairs,
+            n_masked_samples=int((~self.valid).sum()), n_dropped_traj=0, filter="none", region="all")
+        return replace(self, x=noisy, report=replace(report, noise_std=tuple(float(s) for s in sigma)))
 
     def valid_samples(self) -> np.ndarray:
         """All kept samples, (n_valid, n)."""
@@ -174,14 +166,6 @@ class Dataset:
                        fx=None if self.fx is None else self.fx[traj])
 
     def split(self, holdout: float, seed: int = 0) -> tuple["Dataset", "Dataset | None"]:
-        """Split by trajectories into (train, test); test has round(holdout·n_traj) trajectories (at least 1 if
-        holdout > 0 and n_traj ≥ 2)."""
-        if not 0 <= holdout < 1:
-            raise ConfigError(f"data.holdout={holdout}: use a fraction in [0, 1)")
-        n_test = int(round(holdout * self.n_traj))
-        if holdout > 0 and self.n_traj >= 2:
-            n_test = max(n_test, 1)
-        if n_test == 0:
-            return self, None
-        perm = np.random.default_rng(seed).permutation(self.n_traj)
-        return self.subset(np.sort(perm[n_test:])), self.subset(np.sort(perm[:n_test]))
+        """Split by trajectories into (train, test) (:func:`kexp.data.runs.split_indices`)."""
+        train, test = split_indices(self.n_traj, holdout, seed)
+        return (self, None) if test is None else (self.subset(train), self.subset(test))

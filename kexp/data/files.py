@@ -17,13 +17,12 @@ finite sample.  A sample (row) with NaN in x or u is masked (``valid`` False; u 
 the report; runs of different lengths are padded at the end with masked samples (x NaN, u 0).  Each run's time
 is taken relative to its first sample.
 
-Reading is streamed: one pass reads only the shapes, the second fills the Dataset's arrays one file at a time,
-so memory beyond the Dataset is one file.
+Reading (kexp.data.streaming) is run by run: ``open_runs`` gives a streamed source that holds one file at a
+time; ``read_runs`` fills one in-memory Dataset from it.
 """
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import zipfile
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from .dataset import DataReport, Dataset
+from .dataset import Dataset
 
 FORMATS = ("auto", "npz", "csv", "mcap")
 SOURCE_KINDS = ("simulate", "files")
@@ -256,83 +255,12 @@ def _check_time(f: Path, t: np.ndarray, dt: float) -> None:
                         f"{dt:g} (tolerance {DT_TOLERANCE:g}·dt) in {bad.size} step(s); {hint}")
 
 
-# ---- Dataset --------------------------------------------------------------------------------------------------
-
-def read_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "auto", pair_rule: str = "next",
-              system_name: str | None = None, drift=None, region_filter=None, x_eq=None) -> Dataset:
-    """The :class:`Dataset` of the recorded runs at ``path`` (see the module docstring for the layouts and checks):
-    ``x`` (n_traj, T_max+1, n), ``valid`` False at NaN rows and at the padding of shorter runs, ``u`` (n_traj,
-    T_max, m) if any run has inputs (0 for runs without), else None.  ``dt`` must match the files' spacing.
-    Euler pairs need ``drift`` (F, to evaluate at the samples).  ``region_filter`` (a
-    :class:`~kexp.data.RegionFilter` around ``x_eq``) masks or drops samples as for simulated data.  The report counts NaN rows and padding and holds
-    a SHA-256 digest of the files' bytes (``report.digest``), e.g. for cache keys.  With ``system_name``, an
-    MCAP log recorded with another system is refused."""
-    if format not in FORMATS:
-        raise ConfigError(f"data.source.format={format!r}; valid: {FORMATS}")
-    files, formats = list_runs(path, format)
-    shapes = [_run_shape(f, fmt, n, m, system_name) for f, fmt in zip(files, formats)]
-    T1 = max(s[0] for s in shapes)
-    forced = any(s[1] for s in shapes)
-    x = np.full((len(files), T1, n), np.nan)
-    valid = np.zeros((len(files), T1), dtype=bool)
-    u = np.zeros((len(files), T1 - 1, m)) if forced else None
-    digest = hashlib.sha256()
-    n_nan = 0
-    for i, (f, fmt) in enumerate(zip(files, formats)):
-        digest.update(f.name.encode())
-        with open(f, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 16), b""):
-                digest.update(block)
-        t, xi, ui = _read_run(f, fmt, n, m)
-        _check_time(f, t, dt)
-        ok = np.all(np.isfinite(xi), axis=1)
-        if ui is not None:
-            ok[:-1] &= np.all(np.isfinite(ui), axis=1)
-            ui = np.where(np.isfinite(ui), ui, 0.0)
-            ui[~ok[:-1]] = 0.0
-            u[i, :ui.shape[0]] = ui
-        if not ok.any():
-            raise DataError(f"{f}: no sample has finite x{' and u' if ui is not None else ''}; fix or remove the run")
-        n_nan += int((~ok).sum())
-        x[i, :t.size] = np.where(ok[:, None], xi, np.nan)
-        valid[i, :t.size] = ok
-    n_dropped, flt, region = 0, "none", "none"
-    if region_filter is not None and region_filter.active:
-        flt, region = region_filter.mode, region_filter.describe(n)
-        x, valid, u, n_dropped = region_filter.apply(x, valid, u, np.zeros(n) if x_eq is None else x_eq)
-        x = np.where(valid[..., None], x, np.nan)   # a recorded run's masked samples read as NaN rows
-        if not valid.any():
-            raise DataError("recorded data: the filter removed every sample; widen data.filter")
-    fx = None
-    if pair_rule == "euler":
-        if drift is None:
-            raise ConfigError("data.pairs=euler needs the system's drift F for recorded data")
-        fx = np.zeros_like(x)
-        fx[valid] = drift(x[valid])
-    ds = Dataset(t=np.arange(T1) * dt, x=x, valid=valid, dt=dt, pair_rule=pair_rule,
-                 system_name=system_name or "recorded",
-                 u=u, fx=fx)
-    n_pad = int(sum(T1 - s[0] for s in shapes))
-    warnings = [s[2] for s in shapes if s[2]]
-    report = DataReport(n_traj=len(files), n_samples=int(valid.size), n_pairs=ds.n_pairs,
-                        n_masked_samples=int((~valid).sum()), n_dropped_traj=n_dropped, filter=flt, region=region,
-                        source=f"{len(files)} {formats[0]} file(s) at {path}" + (
-                            f" ({len(warnings)} log(s) cut short or unfinished: {warnings[0]})" if warnings else ""),
-                        n_nan_samples=n_nan,
-                        n_padded_samples=n_pad, digest=digest.hexdigest()[:20])
-    object.__setattr__(ds, "report", report)
-    return ds
-
-
-def bounds(dataset: Dataset) -> DataBounds:
-    """The bounding box of the dataset's valid samples."""
-    v = dataset.valid_samples()
-    return DataBounds(tuple(v.min(axis=0).tolist()), tuple(v.max(axis=0).tolist()))
-
+# ---- writing ------------------------------------------------------------------------------------------------
 
 def write_runs(dataset: Dataset, folder: str | Path, format: str = "npz", *, prefix: str = "run") -> list[Path]:
     """Write each trajectory of ``dataset`` to ``folder/{prefix}_{i:04d}.{format}`` (npz or csv), in the layout
-    :func:`read_runs` reads: masked samples are written as NaN rows, trailing masked samples are left out.
+    :func:`~kexp.data.streaming.read_runs` reads: masked samples are written as NaN rows, trailing masked samples
+    are left out.
     Returns the paths."""
     if format not in ("npz", "csv"):
         raise ConfigError(f"format={format!r}; valid: 'npz', 'csv'")

@@ -9,13 +9,13 @@ zero mean, independent across samples and states, drawn from ``numpy.random.defa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
-from .dataset import DataReport, Dataset
+from ..errors import ConfigError
+from .runs import PairSource
 
 
 def _check_std(std: Any, where: str) -> None:
@@ -76,31 +76,21 @@ class NoiseConfig:
         return std * np.asarray(rms, float)
 
 
-def data_rms(dataset: Dataset, x_eq=None) -> np.ndarray:
-    """RMS per state of the kept, finite samples about ``x_eq`` (default 0), (n,)."""
-    xs = dataset.valid_samples()
-    xs = xs[np.all(np.isfinite(xs), axis=1)]
-    if xs.shape[0] == 0:
-        raise DataError("data RMS: no kept finite samples")
-    d = xs - (0.0 if x_eq is None else np.asarray(x_eq, float))
-    return np.sqrt(np.mean(d ** 2, axis=0))
+def data_rms(dataset: PairSource, x_eq=None) -> np.ndarray:
+    """RMS per state of the kept, finite samples about ``x_eq`` (default 0), (n,); any
+    :class:`~kexp.data.runs.PairSource` (a file-backed one streams its runs)."""
+    return dataset.stats(x_eq).rms
 
 
-def add_measurement_noise(dataset: Dataset, std, relative: bool = True, seed: int = 0, *,
-                          x_eq=None) -> Dataset:
-    """A new frozen Dataset whose states ``x`` (n_traj, T+1, n) carry Gaussian noise of standard deviation σ_i per
-    state; its ``report.noise_std`` is σ (n,).  σ = ``std`` × the data's RMS per state about ``x_eq``
-    (:func:`data_rms`) if ``relative``, else ``std`` itself.  Every sample gets noise (masks, inputs and times are
-    unchanged); with Euler pairs the derivative ``fx`` stays the clean F(x) (y = x̃ + F(x)Δ).  The same seed gives
-    the same noise; ``std`` = 0 returns ``dataset`` unchanged.  ``std`` may also be a :class:`NoiseConfig`."""
+def add_measurement_noise(dataset: PairSource, std, relative: bool = True, seed: int = 0, *, x_eq=None):
+    """A new frozen source of the same kind whose states ``x`` (n_traj, T+1, n) carry Gaussian noise of standard
+    deviation σ_i per state; its ``report.noise_std`` is σ (n,).  σ = ``std`` × the data's RMS per state about
+    ``x_eq`` (:func:`data_rms`) if ``relative``, else ``std`` itself.  Every sample gets noise (masks, inputs and
+    times are unchanged); with Euler pairs the derivative ``fx`` stays the clean F(x) (y = x̃ + F(x)Δ).  The same
+    seed gives the same noise, drawn over (n_traj, T+1, n) in C order for a Dataset and for recorded runs alike;
+    ``std`` = 0 returns ``dataset`` unchanged.  ``std`` may also be a :class:`NoiseConfig`."""
     cfg = std if isinstance(std, NoiseConfig) else NoiseConfig(std=std, relative=relative, seed=seed)
     if not cfg.active:
         return dataset
     rms = data_rms(dataset, x_eq) if cfg.relative else None
-    sigma = cfg.sigma(dataset.n, rms)
-    rng = np.random.default_rng(cfg.seed)
-    noisy = dataset.x + rng.standard_normal(dataset.x.shape) * sigma
-    report = dataset.report or DataReport(
-        n_traj=dataset.n_traj, n_samples=int(dataset.valid.size), n_pairs=dataset.n_pairs,
-        n_masked_samples=int((~dataset.valid).sum()), n_dropped_traj=0, filter="none", region="all")
-    return replace(dataset, x=noisy, report=replace(report, noise_std=tuple(float(s) for s in sigma)))
+    return dataset.with_noise(cfg.sigma(dataset.n, rms), cfg.seed)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..data.dataset import Dataset
+from ..data.runs import PairSource, strided_samples
 from ..dictionary import Monomials
 from ..errors import ConfigError, DataError, require_number
 from ..systems.base import ControlAffineSystem
@@ -84,18 +84,18 @@ class IdentifyConfig:
             raise ConfigError(f"identification.input_degree={self.input_degree}: use an int in 1..5")
 
 
-def _unforced_part(dataset: Dataset) -> Dataset:
+def _unforced_part(dataset: PairSource) -> PairSource:
     """The trajectories run without input, if a forced dataset has any (eigenfunction residuals measure the
     unforced evolution); else the dataset itself (then the residuals include the input's effect)."""
     if not dataset.forced:
         return dataset
-    idle = ~np.any(dataset.u != 0, axis=(1, 2))
+    idle = ~dataset.run_forced()
     return dataset.subset(np.flatnonzero(idle)) if idle.any() else dataset
 
 
-def auto_scale(dataset: Dataset) -> tuple[float, ...]:
+def auto_scale(dataset: PairSource) -> tuple[float, ...]:
     """Per-state scale for the dictionary: the largest |x_i| over kept samples (1 where that is 0)."""
-    s = np.abs(dataset.valid_samples()).max(axis=0)
+    s = dataset.stats().absmax
     return tuple(float(v) if v > 0 else 1.0 for v in s)
 
 
@@ -117,9 +117,10 @@ def _select(eig, residual, cfg: IdentifyConfig) -> np.ndarray:
 
 
 @threadpool_limits.wrap(limits=1)   # one BLAS thread: the model must not depend on the machine's core count
-def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomials,
+def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monomials,
              config: IdentifyConfig = IdentifyConfig()) -> KoopmanBilinearModel:
-    """Identify the bilinear Koopman model of ``system`` from the unforced ``dataset``.
+    """Identify the bilinear Koopman model of ``system`` from the unforced ``dataset`` (a Dataset or recorded runs
+    streamed from files, :class:`~kexp.data.streaming.RecordedRuns`: any :class:`~kexp.data.runs.PairSource`).
 
     F is used only through the data.  With ``config.inputs='projection'`` G_i (the input fields) are taken from
     ``system`` for B_i, b_i and the data must be unforced; with 'regression' B_i, b_i are regressed from forced
@@ -218,8 +219,7 @@ def identify(system: ControlAffineSystem, dataset: Dataset, dictionary: Monomial
         dictionary=dictionary, dt=dataset.dt, system=system.name, state_names=tuple(system.state_names),
         report=report)
     if versus_projection is not None:   # the input's effect on ẋ as each model sees it, over the training states
-        xs = train.valid_samples()
-        Z = model.lift(xs[:: max(1, len(xs) // 5000)])
+        Z = model.lift(strided_samples(train, 5000))
         d = np.stack([(Z @ (B[i] - Bp[i]).T + (b[i] - bp[i])) @ C.T for i in range(system.m)])
         ref = np.stack([(Z @ Bp[i].T + bp[i]) @ C.T for i in range(system.m)])
         versus_projection["field_x"] = float(np.linalg.norm(d) / max(np.linalg.norm(ref), 1e-300))

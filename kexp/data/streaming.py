@@ -1,0 +1,235 @@
+"""Recorded runs as a streamed :class:`~kexp.data.runs.PairSource`: :class:`RecordedRuns` reads one file at a
+time, every time identification visits the runs, so memory does not grow with the number of pairs.
+
+:func:`open_runs` makes one first pass over the files (each read and checked once; layouts and checks in
+:mod:`kexp.data.files`) and keeps only what the whole data set is needed for: per run its length, whether it
+is forced and how many pairs it gives, and in all the report's counts, the SHA-256 digest of the files' bytes,
+and the kept samples' count, bounding box, max |x| and Σ(x − x_eq)² (for ``data_rms``, ``bounds`` and the
+dictionary's auto scale).  Measurement noise (:meth:`RecordedRuns.with_noise`) keeps each run's random-generator
+state, so a run's noise is the same on every pass and equal to the in-memory Dataset's.
+:func:`read_runs` reads the same runs into one in-memory :class:`~kexp.data.Dataset`.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ..errors import ConfigError, DataError
+from .dataset import DataReport, Dataset
+from .files import FORMATS, DataBounds, _check_time, _read_mcap, _read_run, _run_shape, list_runs
+from .runs import Run, SampleStats, count_pairs, pair_chunks, sample_stats, split_indices
+
+
+def _load(f: Path, fmt: str, n: int, m: int, dt: float, system_name, region_filter, x_eq):
+    """(x (T+1, n) NaN where masked, valid (T+1,), u (T, m) or None, warning, NaN rows, dropped) of one file."""
+    if fmt == "mcap":   # the log is parsed once: shapes and values come from the same read
+        t, xi, ui, warning = _read_mcap(f, n, m, system_name)
+    else:
+        warning = _run_shape(f, fmt, n, m)[2]
+        t, xi, ui = _read_run(f, fmt, n, m)
+    _check_time(f, t, dt)
+    ok = np.all(np.isfinite(xi), axis=1)
+    if ui is not None:
+        ok[:-1] &= np.all(np.isfinite(ui), axis=1)
+        ui = np.where(np.isfinite(ui), ui, 0.0)
+        ui[~ok[:-1]] = 0.0
+    if not ok.any():
+        raise DataError(f"{f}: no sample has finite x{' and u' if ui is not None else ''}; fix or remove the run")
+    n_nan = int((~ok).sum())
+    dropped = False
+    if region_filter is not None and region_filter.active:
+        _, kept, _, n_drop = region_filter.apply(xi[None], ok[None], None, x_eq)
+        dropped = n_drop > 0
+        ok = ok if dropped else kept[0]
+    return np.where(ok[:, None], xi, np.nan), ok, ui, warning, n_nan, dropped
+
+
+@dataclass(frozen=True, eq=False)
+class RecordedRuns:
+    """Recorded runs read file by file (frozen; see the module docstring).  ``files``/``formats`` the kept runs
+    (a run dropped by the region filter is left out), ``t_len`` the longest run's T+1 over all files,
+    ``forced_runs``/``pairs_runs`` (n_traj,) per run; ``noise_sigma`` (n,) and ``noise_states``
+    (one generator state per run) when measurement noise was added.  Build it with :func:`open_runs`."""
+
+    files: tuple
+    formats: tuple
+    n: int
+    m: int
+    dt: float
+    pair_rule: str
+    system_name: str
+    has_inputs: bool
+    t_len: int
+    forced_runs: np.ndarray
+    pairs_runs: np.ndarray
+    report: DataReport
+    region_filter: object = None
+    x_eq: np.ndarray | None = None
+    drift: Callable | None = None
+    expect_system: str | None = None   # an MCAP log recorded with another system is refused
+    noise_sigma: np.ndarray | None = None
+    noise_states: tuple | None = None
+    cached_stats: tuple = field(default=())   # SampleStats of the clean full set, about 0 and x_eq
+
+    @property
+    def n_traj(self) -> int:
+        return len(self.files)
+
+    @property
+    def n_pairs(self) -> int:
+        return int(self.pairs_runs.sum())
+
+    @property
+    def forced(self) -> bool:
+        return bool(self.forced_runs.any())
+
+    def run_forced(self) -> np.ndarray:
+        return self.forced_runs.copy()
+
+    def runs(self) -> Iterator[Run]:
+        """The runs one at a time, read from their files (length T+1 of each run, not padded)."""
+        for j, (f, fmt) in enumerate(zip(self.files, self.formats)):
+            x, ok, u, *_ = _load(f, fmt, self.n, self.m, self.dt, self.expect_system, self.region_filter, self.x_eq)
+            if self.has_inputs and u is None:
+                u = np.zeros((x.shape[0] - 1, self.m))
+            fx = None
+            if self.pair_rule == "euler":
+                fx = np.zeros_like(x)
+                fx[ok] = self.drift(x[ok])
+            if self.noise_states is not None:
+                rng = np.random.default_rng(0)
+                rng.bit_generator.state = self.noise_states[j]
+                x = x + rng.standard_normal((self.t_len, self.n))[: x.shape[0]] * self.noise_sigma
+            yield Run(x, ok, u, fx)
+
+    def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False):
+        return pair_chunks(self, chunk_size, with_inputs=with_inputs)
+
+    def subset(self, traj) -> "RecordedRuns":
+        traj = np.asarray(traj, dtype=int)
+        return replace(self, files=tuple(self.files[i] for i in traj), formats=tuple(self.formats[i] for i in traj),
+                       forced_runs=self.forced_runs[traj],
+                       pairs_runs=self.pairs_runs[traj], cached_stats=(),
+                       noise_states=None if self.noise_states is None else tuple(self.noise_states[i] for i in traj))
+
+    def split(self, holdout: float, seed: int = 0) -> tuple["RecordedRuns", "RecordedRuns | None"]:
+        train, test = split_indices(self.n_traj, holdout, seed)
+        return (self, None) if test is None else (self.subset(train), self.subset(test))
+
+    def stats(self, center=None) -> SampleStats:
+        c = np.zeros(self.n) if center is None else np.asarray(center, float).reshape(self.n)
+        for s in self.cached_stats:
+            if np.array_equal(s.center, c):
+                return s
+        return sample_stats(self.runs(), self.n, c)
+
+    def with_noise(self, sigma: np.ndarray, seed: int) -> "RecordedRuns":
+        """Noise σ·N(0, 1) from ``default_rng(seed)`` drawn run after run over (t_len, n) each, as the in-memory
+        Dataset draws over its (n_traj, T+1, n) array; only each run's generator state is kept."""
+        rng, states = np.random.default_rng(seed), []
+        for _ in range(self.n_traj):
+            states.append(rng.bit_generator.state)
+            rng.standard_normal((self.t_len, self.n))
+        sigma = np.asarray(sigma, float)
+        return replace(self, noise_sigma=sigma, noise_states=tuple(states), cached_stats=(),
+                       report=replace(self.report, noise_std=tuple(float(s) for s in sigma)))
+
+    def to_dataset(self) -> Dataset:
+        """The runs in one in-memory Dataset: x (n_traj, t_len, n) padded with masked NaN samples."""
+        x = np.full((self.n_traj, self.t_len, self.n), np.nan)
+        valid = np.zeros((self.n_traj, self.t_len), dtype=bool)
+        u = np.zeros((self.n_traj, self.t_len - 1, self.m)) if self.has_inputs else None
+        fx = np.zeros_like(x) if self.pair_rule == "euler" else None
+        for i, run in enumerate(self.runs()):
+            T1 = run.x.shape[0]
+            x[i, :T1], valid[i, :T1] = run.x, run.valid
+            if u is not None:
+                u[i, :T1 - 1] = run.u
+            if fx is not None:
+                fx[i, :T1] = run.fx
+        return Dataset(t=np.arange(self.t_len) * self.dt, x=x, valid=valid, dt=self.dt, pair_rule=self.pair_rule,
+                       system_name=self.system_name, u=u, fx=fx, report=self.report)
+
+
+def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "auto", pair_rule: str = "next",
+              system_name: str | None = None, drift=None, region_filter=None, x_eq=None) -> RecordedRuns:
+    """The recorded runs at ``path`` as a streamed :class:`RecordedRuns`, after one pass that reads and checks
+    every file (the arguments and checks as :func:`read_runs`)."""
+    if format not in FORMATS:
+        raise ConfigError(f"data.source.format={format!r}; valid: {FORMATS}")
+    if pair_rule == "euler" and drift is None:
+        raise ConfigError("data.pairs=euler needs the system's drift F for recorded data")
+    files, formats = list_runs(path, format)
+    x_eq = np.zeros(n) if x_eq is None else np.asarray(x_eq, float).reshape(n)
+    digest = hashlib.sha256()
+    kept, all_lengths, forced, pairs, warnings = [], [], [], [], []
+    has_inputs, n_nan, n_dropped = False, 0, 0
+    about = (np.zeros(n), x_eq)
+    sums = [np.zeros(n), np.zeros(n)]
+    count, low, high, absmax = 0, np.full(n, np.inf), np.full(n, -np.inf), np.zeros(n)
+    for i, (f, fmt) in enumerate(zip(files, formats)):
+        digest.update(f.name.encode())
+        with open(f, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 16), b""):
+                digest.update(block)
+        x, ok, u, warning, nan_rows, dropped = _load(f, fmt, n, m, dt, system_name, region_filter, x_eq)
+        has_inputs |= u is not None
+        n_nan += nan_rows
+        all_lengths.append(x.shape[0])
+        if warning:
+            warnings.append(warning)
+        if dropped:
+            n_dropped += 1
+            continue
+        kept.append(i)
+        forced.append(u is not None and bool(np.any(u != 0)))
+        pairs.append(count_pairs(Run(x, ok), pair_rule))
+        xs = x[ok]
+        count += xs.shape[0]
+        if xs.shape[0]:
+            low, high = np.minimum(low, xs.min(axis=0)), np.maximum(high, xs.max(axis=0))
+            absmax = np.maximum(absmax, np.abs(xs).max(axis=0))
+            sums = [np.concatenate([s[None], (xs - c) ** 2]).sum(axis=0) for s, c in zip(sums, about)]
+    if count == 0:
+        raise DataError("recorded data: the filter removed every sample; widen data.filter")
+    t_len = max(all_lengths)
+    n_kept = len(kept)
+    flt, region = ("none", "none") if region_filter is None or not region_filter.active else \
+        (region_filter.mode, region_filter.describe(n))
+    report = DataReport(n_traj=len(files), n_samples=n_kept * t_len, n_pairs=int(sum(pairs)),
+                        n_masked_samples=n_kept * t_len - count, n_dropped_traj=n_dropped, filter=flt, region=region,
+                        source=f"{len(files)} {formats[0]} file(s) at {path}" + (
+                            f" ({len(warnings)} log(s) cut short or unfinished: {warnings[0]})" if warnings else ""),
+                        n_nan_samples=n_nan, n_padded_samples=int(sum(t_len - s for s in all_lengths)),
+                        digest=digest.hexdigest()[:20])
+    stats = tuple(SampleStats(count=count, low=low, high=high, absmax=absmax, sumsq=s, center=c)
+                  for s, c in zip(sums, about))
+    return RecordedRuns(files=tuple(files[i] for i in kept), formats=tuple(formats[i] for i in kept), n=n, m=m,
+                        dt=dt, pair_rule=pair_rule, system_name=system_name or "recorded", has_inputs=has_inputs,
+                        t_len=t_len, forced_runs=np.array(forced, bool),
+                        pairs_runs=np.array(pairs, dtype=np.int64), report=report, region_filter=region_filter,
+                        x_eq=x_eq, drift=drift, expect_system=system_name, cached_stats=stats)
+
+
+def read_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "auto", pair_rule: str = "next",
+              system_name: str | None = None, drift=None, region_filter=None, x_eq=None) -> Dataset:
+    """The :class:`Dataset` of the recorded runs at ``path`` (layouts and checks: :mod:`kexp.data.files`):
+    ``x`` (n_traj, T_max+1, n), ``valid`` False at NaN rows and at the padding of shorter runs, ``u`` (n_traj,
+    T_max, m) if any run has inputs (0 for runs without), else None.  ``dt`` must match the files' spacing.
+    Euler pairs need ``drift`` (F, to evaluate at the samples).  ``region_filter`` (a
+    :class:`~kexp.data.RegionFilter` around ``x_eq``) masks or drops samples as for simulated data.  The report
+    counts NaN rows and padding and holds a SHA-256 digest of the files' bytes (``report.digest``), e.g. for
+    cache keys.  With ``system_name``, an MCAP log recorded with another system is refused.  The same runs
+    streamed, without holding them all: :func:`open_runs`."""
+    return open_runs(path, n=n, m=m, dt=dt, format=format, pair_rule=pair_rule, system_name=system_name,
+                     drift=drift, region_filter=region_filter, x_eq=x_eq).to_dataset()
+
+
+def bounds(dataset) -> DataBounds:
+    """The bounding box of the kept samples of a Dataset or :class:`RecordedRuns` (no pass for the latter)."""
+    s = dataset.stats()
+    return DataBounds(tuple(s.low.tolist()), tuple(s.high.tolist()))
