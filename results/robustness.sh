@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The sweeps behind the README's robustness table (issue 12): 100 initial conditions per row,
-# np.random.default_rng(42).uniform(-1, 1, (2, 100)), each condensed into results/<system>_<row>.csv.
+# np.random.default_rng(42).uniform(-1, 1, (2, 100)), each condensed into results/robustness/<system>_<row>.csv
+# (the unperturbed rows <system>_lmpc|lqr|nmpc into results/, the main results table's).
 #
 #   results/robustness.sh ROW [ROW ...]     # e.g. vanderpol_lmpc-reg-noise1 pendulum_nmpc-noise3
 #   results/robustness.sh --list            # every row this script knows
@@ -14,7 +15,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 X0=$(python -c "import numpy as np; ics=np.random.default_rng(42).uniform(-1,1,(2,100)).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))")
 JOBS=${KEXP_SWEEP_JOBS:-2}
-mkdir -p sweeps
+mkdir -p sweeps results/robustness
 
 overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 system=${1%%_*} rest=${1#*_}
@@ -58,5 +59,7 @@ for row in "$@"; do
     echo "== $row: ${ov[*]}"
     kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="$JOBS" logging.rrd=false "sim.x0=$X0" "${ov[@]}" \
         hydra.sweep.dir="sweeps/$row" > "sweeps/$row.log" 2>&1 || true
-    kexp-results collect "sweeps/$row" "$row" -o results || echo "== $row: no results (see sweeps/$row.log)"
+    dest=results/robustness
+    [[ $row =~ ^[a-z_]+_(lmpc|lqr|nmpc)$ ]] && dest=results
+    kexp-results collect "sweeps/$row" "$row" -o "$dest" || echo "== $row: no results (see sweeps/$row.log)"
 done

@@ -3,6 +3,7 @@ ratio to the oracle (nonlinear MPC with the true model) on the same initial cond
 
     kexp-results collect SWEEP_DIR NAME [-o results/]   # condense a sweep into results/NAME.csv (committed)
     kexp-results table results/*.csv                     # print the Markdown table (the README's)
+    kexp-results robustness results/*.csv results/robustness/*.csv   # the robustness table (the README's)
 
 The condensed CSVs are small and committed, so the table can be regenerated (and is, by a test) without
 re-running the sweeps.  A CSV's name is ``<system>_<config>.csv``; the oracle of a system is its ``*_nmpc.csv``.
@@ -19,7 +20,7 @@ import numpy as np
 from .report import ReportError, aggregate
 
 COLUMNS = ["x0_1", "x0_2", "status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms",
-           "max_abs_u", "fallbacks", "certificate", "inputs", "data_noise", "sim_noise", "mismatch"]
+           "max_abs_u", "fallbacks", "certificate", "controller", "inputs", "data_noise", "sim_noise", "mismatch"]
 
 
 def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
@@ -32,7 +33,7 @@ def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
         for r in sorted(rows, key=lambda r: tuple(r["x0"] or [np.inf, np.inf])):
             x0 = r["x0"] or [None, None]
             vals = [x0[0], x0[1], r["status"], r["success"], r["cost"], r["settling_time_s"], r["solve_median_ms"],
-                    r["solve_p99_ms"], r["max_abs_u"], r["fallbacks"], r["certificate"], r["inputs"],
+                    r["solve_p99_ms"], r["max_abs_u"], r["fallbacks"], r["certificate"], r["controller"], r["inputs"],
                     r["data_noise"], r["sim_noise"], r["mismatch"]]
             w.writerow(["" if v is None else (f"{v:.10g}" if isinstance(v, float) else v) for v in vals])
     return out
@@ -85,10 +86,15 @@ def main(argv=None) -> None:
     c.add_argument("-o", "--out", default="results")
     t = sub.add_parser("table", help="print the Markdown results table")
     t.add_argument("csv", nargs="+")
+    rb = sub.add_parser("robustness", help="print the Markdown robustness table (kexp.app.robustness)")
+    rb.add_argument("csv", nargs="+")
     args = p.parse_args(argv)
     try:
         if args.cmd == "collect":
             print(f"wrote {collect(args.sweep, args.name, args.out)}")
+        elif args.cmd == "robustness":
+            from .robustness import table as robustness_table
+            print(robustness_table(args.csv))
         else:
             print(table(args.csv))
     except (ReportError, OSError) as exc:

@@ -1,0 +1,96 @@
+"""The robustness table: each controller under each perturbation, against the true-model oracle under the same
+perturbation, from the committed sweep summaries (results/*.csv, results/robustness/*.csv).
+
+A CSV's conditions are read from its columns (written by ``kexp-results collect`` from each run's summary):
+``controller``, ``inputs`` (projection on the known G, or regression), ``sim_noise`` (measurement noise as a
+fraction of the data's RMS; the data carry the same), ``mismatch`` (the plant's parameters that differ from the
+data's system).  CSVs written before these columns existed count as unperturbed runs with G known.  The ratio
+J / J_oracle is taken per initial condition against the oracle (controller ``nmpc``) with the same noise and
+plant; the LQR (true linearisation) and the oracle know the plant, so only the LMPC is data-driven.
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from .report import ReportError
+
+KINDS = ("lmpc", "lqr", "nmpc")
+
+
+def _f(v) -> float:
+    return float(v) if v not in ("", None) else float("nan")
+
+
+def _conditions(name: str, row: dict) -> tuple:
+    controller = row.get("controller") or name.partition("_")[2].split("-")[0]
+    controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
+    return (controller, row.get("inputs") or "projection", round(_f(row.get("sim_noise") or 0.0), 6),
+            row.get("mismatch") or "")
+
+
+def load(paths) -> dict:
+    """{(system, controller, inputs, noise, mismatch): (file name, {x0: (success, cost)})} over ``paths``;
+    raises :class:`ReportError` when a CSV mixes conditions or two CSVs hold the same ones."""
+    out: dict = {}
+    for p in sorted(Path(p) for p in paths):
+        with open(p, newline="") as f:
+            rows = list(csv.DictReader(f))
+        if not rows:
+            continue
+        system = p.stem.partition("_")[0]
+        keys = {_conditions(p.stem, r) for r in rows if r.get("status") == "completed"} or \
+            {_conditions(p.stem, rows[0])}
+        if len(keys) > 1:
+            raise ReportError(f"{p}: runs under different conditions {sorted(keys)}; one sweep per CSV")
+        key = (system, *keys.pop())
+        if key[1] not in KINDS:
+            continue
+        if key in out:
+            raise ReportError(f"{p} and {out[key][0]} hold the same runs' conditions {key}; keep one")
+        out[key] = (p.name, {(r["x0_1"], r["x0_2"]): (r["success"] == "True", _f(r["cost"])) for r in rows})
+    return out
+
+
+def _noise(v: float) -> str:
+    return "0" if v == 0 else f"{100 * v:g} %"
+
+
+def _plant(m: str) -> str:
+    return "nominal" if not m else m.replace("mu=", "μ = ").replace("c=", "c = ")
+
+
+def _cell(runs: dict | None, oracle: dict | None) -> tuple[str, str]:
+    if runs is None:
+        return "–", "–"
+    succ = f"{sum(s for s, _ in runs.values())}/{len(runs)}"
+    if oracle is None:
+        return succ, "no oracle"
+    ratios = np.array([c / oracle[x][1] for x, (s, c) in runs.items() if x in oracle and np.isfinite(c)])
+    if ratios.size == 0:
+        return succ, "–"
+    return succ, f"{np.median(ratios):.3f} / {ratios.max():.3g}"
+
+
+def table(paths) -> str:
+    """The Markdown robustness table: per system and perturbation (G known or regressed, noise, plant), the
+    LMPC's and LQR's successes and J / J_oracle (median / worst), and the oracle's successes."""
+    data = load(paths)
+    lines = ["| system | G | noise σ | plant | LMPC success | LMPC J/J* median / worst | LQR success "
+             "| LQR J/J* median / worst | oracle success |",
+             "|---|---|---:|---|---:|---:|---:|---:|---:|"]
+    conds = sorted({(s, i, n, m) for (s, c, i, n, m) in data if c == "lmpc"},
+                   key=lambda k: (k[0], k[3] != "", k[1] != "projection", k[2], k[3]))
+    for system, inputs, noise, mism in conds:
+        lmpc = data[(system, "lmpc", inputs, noise, mism)][1]
+        base = lambda c: next((v[1] for k, v in data.items() if k[:2] == (system, c) and k[3:] == (noise, mism)),  # noqa: E731
+                              None)
+        oracle, lqr = base("nmpc"), base("lqr")
+        ls, lr = _cell(lmpc, oracle)
+        qs, qr = _cell(lqr, oracle)
+        os_ = "–" if oracle is None else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}"
+        g = "known" if inputs == "projection" else "regressed"
+        lines.append(f"| {system} | {g} | {_noise(noise)} | {_plant(mism)} | {ls} | {lr} | {qs} | {qr} | {os_} |")
+    return "\n".join(lines)

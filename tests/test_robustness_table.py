@@ -1,0 +1,74 @@
+"""The robustness table (kexp-results robustness): conditions read from the CSVs' columns, ratios per initial
+condition against the oracle under the same noise and plant, and refusals of ambiguous inputs."""
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kexp.app.report import ReportError
+from kexp.app.results import COLUMNS
+from kexp.app.robustness import load, table
+
+RESULTS = Path(__file__).resolve().parents[1] / "results"
+
+
+def _write(path, costs, *, controller, inputs="projection", noise=0.0, mismatch="", success=None):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(COLUMNS)
+        for i, c in enumerate(costs):
+            row = {k: "" for k in COLUMNS}
+            ok = True if success is None else success[i]
+            row.update(x0_1=str(i / 10), x0_2="0.5", status="completed", success=str(ok), cost=repr(float(c)),
+                       controller=controller, inputs=inputs, data_noise=repr(noise), sim_noise=repr(noise),
+                       mismatch=mismatch)
+            w.writerow([row[k] for k in COLUMNS])
+    return path
+
+
+def test_ratios_against_the_oracle_under_the_same_conditions(tmp_path):
+    o = np.array([1.0, 2.0, 4.0])
+    _write(tmp_path / "vdp_nmpc.csv", o, controller="nmpc_oracle")
+    _write(tmp_path / "vdp_nmpc-noise1.csv", 2 * o, controller="nmpc_oracle", noise=0.01)
+    _write(tmp_path / "vdp_lmpc.csv", o * [1.1, 1.0, 1.2], controller="lmpc")
+    _write(tmp_path / "vdp_lmpc-reg-noise1.csv", 2 * o * [1.5, 1.0, 1.25], controller="lmpc", inputs="regression",
+           noise=0.01, success=[True, False, True])
+    _write(tmp_path / "vdp_lqr-noise1.csv", 2 * o * [1.0, 1.0, 3.0], controller="lqr", noise=0.01)
+    _write(tmp_path / "vdp_lmpc-reg-mu1.2.csv", o, controller="lmpc", inputs="regression", mismatch="mu=1.2")
+    lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
+    assert lines[2] == "| vdp | known | 0 | nominal | 3/3 | 1.100 / 1.2 | – | – | 3/3 |"
+    # noise rows: ratios against the noisy oracle (2·o), not the noise-free one
+    assert lines[3] == "| vdp | regressed | 1 % | nominal | 2/3 | 1.250 / 1.5 | 3/3 | 1.000 / 3 | 3/3 |"
+    assert lines[4] == "| vdp | regressed | 0 | μ = 1.2 | 3/3 | no oracle | – | – | – |"
+    assert len(lines) == 5
+
+
+def test_old_csvs_without_columns_count_as_unperturbed(tmp_path):
+    p = tmp_path / "vdp_lmpc.csv"
+    with open(p, "w") as f:
+        f.write("x0_1,x0_2,status,success,cost\n0.1,0.2,completed,True,2.0\n")
+    assert list(load([p])) == [("vdp", "lmpc", "projection", 0.0, "")]
+
+
+def test_refusals(tmp_path):
+    _write(tmp_path / "a_lmpc.csv", [1.0], controller="lmpc")
+    _write(tmp_path / "a_lmpc-again.csv", [1.0], controller="lmpc")
+    with pytest.raises(ReportError, match="hold the same runs' conditions"):
+        load(sorted(tmp_path.glob("*.csv")))
+    mixed = _write(tmp_path / "b_lmpc.csv", [1.0], controller="lmpc")
+    with open(mixed, "a", newline="") as f:
+        row = dict.fromkeys(COLUMNS, "")
+        row.update(x0_1="9", x0_2="9", status="completed", success="True", cost="1.0", controller="lmpc",
+                   inputs="regression", sim_noise="0.0")
+        csv.writer(f).writerow([row[k] for k in COLUMNS])
+    with pytest.raises(ReportError, match="different conditions"):
+        load([mixed])
+
+
+def test_committed_robustness_table_is_generated_from_the_committed_csvs():
+    committed = RESULTS / "robustness.md"
+    if not committed.is_file():
+        pytest.skip("no committed robustness table yet")
+    csvs = sorted(RESULTS.glob("*.csv")) + sorted((RESULTS / "robustness").glob("*.csv"))
+    assert table(csvs).strip() == committed.read_text().strip()
