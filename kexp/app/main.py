@@ -175,7 +175,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
                            prediction_every=log_cfg["prediction_every"])
         logger.log_config(cfg_dict, chash)
         logger.log_model(model)
-        logger.log_clf(clf, level_set_boundary(model, clf.lyap, clf.r), level_set_boundary(model, clf.lyap, clf.r_hat))
+        omega_r = level_set_boundary(model, clf.lyap, clf.r)
+        logger.log_clf(clf, omega_r, omega_r if clf.r_hat == clf.r else level_set_boundary(model, clf.lyap, clf.r_hat))
     bar = Progress(sim_cfg.n_steps, f"{system.name} closed loop",
                    enabled=auto_progress if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
 

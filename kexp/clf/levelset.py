@@ -16,18 +16,16 @@ def level_set_boundary(model, lyap, level: float, *, radius: float = 3.0, n_angl
     rho = np.linspace(0, radius, n_scan)[1:]
     pts = model.x_eq + dirs[:, None, :] * rho[None, :, None]
     V = lyap.value(model.lift(pts.reshape(-1, 2))).reshape(n_angles, -1)
-    out = []
-    for i in range(n_angles):
-        above = np.flatnonzero(V[i] >= level)
-        if above.size == 0:
-            continue
-        j = above[0]
-        lo, hi = (0.0 if j == 0 else rho[j - 1]), rho[j]
-        for _ in range(40):
-            mid = 0.5 * (lo + hi)
-            if lyap.value(model.lift(model.x_eq + mid * dirs[i])) >= level:
-                hi = mid
-            else:
-                lo = mid
-        out.append(model.x_eq + 0.5 * (lo + hi) * dirs[i])
-    return np.array(out).reshape(-1, 2)
+    # bisection on every crossing direction at once (one batched lift per halving, not one per point)
+    hit = V >= level
+    rows = np.flatnonzero(hit.any(axis=1))
+    j = hit[rows].argmax(axis=1)
+    lo = np.where(j == 0, 0.0, rho[np.maximum(j - 1, 0)])
+    hi = rho[j]
+    d = dirs[rows]
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        above = lyap.value(model.lift(model.x_eq + mid[:, None] * d)) >= level
+        hi = np.where(above, mid, hi)
+        lo = np.where(above, lo, mid)
+    return (model.x_eq + (0.5 * (lo + hi))[:, None] * d).reshape(-1, 2)
