@@ -13,7 +13,8 @@ from kexp.app.robustness import load, table
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 
 
-def _write(path, costs, *, controller, inputs="projection", noise=0.0, mismatch="", success=None):
+def _write(path, costs, *, controller, inputs="projection", noise=0.0, mismatch="", success=None,
+           smoothing="none"):
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(COLUMNS)
@@ -22,7 +23,7 @@ def _write(path, costs, *, controller, inputs="projection", noise=0.0, mismatch=
             ok = True if success is None else success[i]
             row.update(x0_1=str(i / 10), x0_2="0.5", status="completed", success=str(ok), cost=repr(float(c)),
                        controller=controller, inputs=inputs, data_noise=repr(noise), sim_noise=repr(noise),
-                       mismatch=mismatch)
+                       mismatch=mismatch, smoothing=smoothing)
             w.writerow([row[k] for k in COLUMNS])
     return path
 
@@ -33,22 +34,29 @@ def test_ratios_against_the_oracle_under_the_same_conditions(tmp_path):
     _write(tmp_path / "vdp_nmpc-noise1.csv", 2 * o, controller="nmpc_oracle", noise=0.01)
     _write(tmp_path / "vdp_lmpc.csv", o * [1.1, 1.0, 1.2], controller="lmpc")
     _write(tmp_path / "vdp_lmpc-reg-noise1.csv", 2 * o * [1.5, 1.0, 1.25], controller="lmpc", inputs="regression",
-           noise=0.01, success=[True, False, True])
+           noise=0.01, success=[True, False, True], smoothing="Savitzky–Golay, window 21, order 3")
+    _write(tmp_path / "vdp_lmpc-reg-noise1-raw.csv", 2 * o * 2.0, controller="lmpc", inputs="regression",
+           noise=0.01)
     _write(tmp_path / "vdp_lqr-noise1.csv", 2 * o * [1.0, 1.0, 3.0], controller="lqr", noise=0.01)
     _write(tmp_path / "vdp_lmpc-reg-mu1.2.csv", o, controller="lmpc", inputs="regression", mismatch="mu=1.2")
     lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
     assert lines[2] == "| vdp | known | 0 | nominal | 3/3 | 1.100 / 1.2 | – | – | 3/3 |"
     # noise rows: ratios against the noisy oracle (2·o), not the noise-free one
-    assert lines[3] == "| vdp | regressed | 1 % | nominal | 2/3 | 1.250 / 1.5 | 3/3 | 1.000 / 3 | 3/3 |"
-    assert lines[4] == "| vdp | regressed | 0 | μ = 1.2 | 3/3 | no oracle | – | – | – |"
-    assert len(lines) == 5
+    assert lines[3] == "| vdp | regressed, data raw | 1 % | nominal | 3/3 | 2.000 / 2 | 3/3 | 1.000 / 3 | 3/3 |"
+    assert lines[4] == "| vdp | regressed, data SG 21 | 1 % | nominal | 2/3 | 1.250 / 1.5 | 3/3 | 1.000 / 3 | 3/3 |"
+    assert lines[5] == "| vdp | regressed | 0 | μ = 1.2 | 3/3 | no oracle | – | – | – |"
+    assert len(lines) == 6
+    # without an oracle under 1 % noise: against the noise-free one, marked †
+    (tmp_path / "vdp_nmpc-noise1.csv").unlink()
+    lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
+    assert lines[4] == "| vdp | regressed, data SG 21 | 1 % | nominal | 2/3 | 2.500 / 3 † | 3/3 | 2.000 / 6 † | – |"
 
 
 def test_old_csvs_without_columns_count_as_unperturbed(tmp_path):
     p = tmp_path / "vdp_lmpc.csv"
     with open(p, "w") as f:
         f.write("x0_1,x0_2,status,success,cost\n0.1,0.2,completed,True,2.0\n")
-    assert list(load([p])) == [("vdp", "lmpc", "projection", 0.0, "")]
+    assert list(load([p])) == [("vdp", "lmpc", "projection", 0.0, "none", "")]
 
 
 def test_refusals(tmp_path):

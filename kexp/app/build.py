@@ -95,6 +95,7 @@ def build_data(cfg: Mapping[str, Any]):
     """Returns (sampler, DataConfig); the sampler is None for recorded data (``data.source.kind=files``)."""
     cfg = dict(_plain(cfg))
     cfg.pop("noise", None)  # data.noise: applied after collection (build_data_noise, kexp.data.noise)
+    cfg.pop("smooth", None)  # data.smooth: applied after the noise (build_data_smoothing, kexp.data.smoothing)
     sampler_cfg = dict(cfg.pop("sampler", None) or {})
     source = construct(DataSource, cfg.pop("source", None), "data.source")
     sampler = None
@@ -124,6 +125,16 @@ def build_noise(cfg: Mapping[str, Any] | None, where: str, n: int):
         return noise
     except ConfigError as exc:
         raise ConfigError(re.sub(r"(?<![\w.])noise\.", f"{where}.", str(exc))) from None
+
+
+def build_data_smoothing(cfg: Mapping[str, Any]):
+    """The SmoothConfig of ``data.smooth`` (off if absent), errors naming that key."""
+    import re
+    from ..data.smoothing import SmoothConfig
+    try:
+        return construct(SmoothConfig, dict(_plain(cfg)).get("smooth"), "data.smooth")
+    except ConfigError as exc:
+        raise ConfigError(re.sub(r"(?<![\w.])smooth\.", "data.smooth.", str(exc))) from None
 
 
 def build_data_noise(cfg: Mapping[str, Any], n: int):

@@ -25,7 +25,8 @@ from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
-                    build_data_noise, build_identification, build_logging, build_plant, build_sim, build_system,
+                    build_data_noise, build_data_smoothing, build_identification, build_logging, build_plant,
+                    build_sim, build_system,
                     check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
                     system_settings)
 from .cache import Cache, clf_key, model_key
@@ -84,6 +85,7 @@ def _perturbation(system, plant_params: dict, model, sim_cfg) -> dict:
     sim_std = sim_cfg.noise.sigma(system.n, rms) if sim_cfg.noise.active else np.zeros(system.n)
     dist_std = sim_cfg.disturbance.sigma(system.m) if sim_cfg.disturbance.active else np.zeros(system.m)
     return {"noise": {"data_rms": rms, "data_noise_std": model.report.get("data_noise_std"),
+                      "data_smoothing": model.report.get("data_smoothing", "none"),
                       "sim_noise_std": sim_std.tolist(), "disturbance_std": dist_std.tolist()},
             "plant": {"params": plant_params,
                       "mismatch": {k: {"nominal": getattr(system, k), "plant": v} for k, v in plant_params.items()
@@ -122,6 +124,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     file_data = read_data_files(system, data_cfg) if data_cfg.source.kind == "files" else None
     clf_cfg = build_clf(cfg["clf"])
     data_noise = build_data_noise(cfg["data"], system.n)
+    data_smooth = build_data_smoothing(cfg["data"])
     sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt,
                                        sampler if file_data is None else data_bounds(file_data))
     plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
@@ -141,12 +144,13 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     def identify_now():
         dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
         rms = data_rms(dataset, system.equilibrium)
-        dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium)
+        dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium).with_smoothing(data_smooth)
         model = identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
         # kept with the cached model: a relative sim.noise is a fraction of these (clean data, about x_eq)
         model.report["data_rms"] = rms.tolist()
         model.report["data_noise_std"] = None if dataset.report.noise_std is None else list(
             dataset.report.noise_std)
+        model.report["data_smoothing"] = dataset.report.smoothing
         return model
 
     # recorded data: the files' content (not only their path) determines the model

@@ -162,6 +162,7 @@ def _row(job: Path, root: Path, overrides: list[str] | None, summary: dict | Non
         "status": None, "ok": False, "success": None, "final_error": None, "cost": None, "settling_time_s": None,
         "max_abs_u": None, "fallbacks": None, "solve_median_ms": None, "solve_p99_ms": None, "certificate": None,
         "certificate_verdict": None, "clf_status": None, "wall_time_s": None, "reason": reason or "",
+        "inputs": None, "data_noise": None, "smoothing": None, "sim_noise": None, "mismatch": None,
     }
     if summary is None:
         row["status"] = missing_status
@@ -212,13 +213,15 @@ def _relative(std, rms) -> float | None:
 def _conditions(summary: dict) -> dict:
     """What a run was perturbed by, from its summary: ``inputs`` (how B, b were identified: projection on the
     known G, or regression from forced data), ``data_noise`` and ``sim_noise`` (measurement noise on the data and
-    in the closed loop, as the largest fraction of the data's RMS over the states) and ``mismatch`` ('' or e.g.
+    in the closed loop, as the largest fraction of the data's RMS over the states), ``smoothing`` (the filter on
+    the data before identification: 'none' or e.g. 'Savitzky–Golay, window 21, order 3') and ``mismatch`` ('' or e.g.
     'mu=1.2': the plant's parameters that differ from the data's system)."""
     noise = summary.get("noise") or {}
     rms = noise.get("data_rms")
     mism = ((summary.get("plant") or {}).get("mismatch")) or {}
     return {"inputs": (summary.get("model") or {}).get("inputs", "projection"),
             "data_noise": _relative(noise.get("data_noise_std"), rms),
+            "smoothing": noise.get("data_smoothing") or "none",
             "sim_noise": _relative(noise.get("sim_noise_std"), rms),
             "mismatch": ";".join(f"{k}={d['plant']:g}" for k, d in sorted(mism.items()))}
 

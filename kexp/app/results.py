@@ -20,7 +20,8 @@ import numpy as np
 from .report import ReportError, aggregate
 
 COLUMNS = ["x0_1", "x0_2", "status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms",
-           "max_abs_u", "fallbacks", "certificate", "controller", "inputs", "data_noise", "sim_noise", "mismatch"]
+           "max_abs_u", "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing", "sim_noise",
+           "mismatch"]
 
 
 def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
@@ -34,7 +35,7 @@ def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
             x0 = r["x0"] or [None, None]
             vals = [x0[0], x0[1], r["status"], r["success"], r["cost"], r["settling_time_s"], r["solve_median_ms"],
                     r["solve_p99_ms"], r["max_abs_u"], r["fallbacks"], r["certificate"], r["controller"], r["inputs"],
-                    r["data_noise"], r["sim_noise"], r["mismatch"]]
+                    r["data_noise"], r["smoothing"], r["sim_noise"], r["mismatch"]]
             w.writerow(["" if v is None else (f"{v:.10g}" if isinstance(v, float) else v) for v in vals])
     return out
 

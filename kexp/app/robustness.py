@@ -3,7 +3,8 @@ perturbation, from the committed sweep summaries (results/*.csv, results/robustn
 
 A CSV's conditions are read from its columns (written by ``kexp-results collect`` from each run's summary):
 ``controller``, ``inputs`` (projection on the known G, or regression), ``sim_noise`` (measurement noise as a
-fraction of the data's RMS; the data carry the same), ``mismatch`` (the plant's parameters that differ from the
+fraction of the data's RMS; the data carry the same), ``smoothing`` (the data's filter before identification:
+'raw' or 'SG <window>' in the table), ``mismatch`` (the plant's parameters that differ from the
 data's system).  CSVs written before these columns existed count as unperturbed runs with G known.  The ratio
 J / J_oracle is taken per initial condition against the oracle (controller ``nmpc``) with the same noise and
 plant; the LQR (true linearisation) and the oracle know the plant, so only the LMPC is data-driven.
@@ -28,11 +29,12 @@ def _conditions(name: str, row: dict) -> tuple:
     controller = row.get("controller") or name.partition("_")[2].split("-")[0]
     controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
     return (controller, row.get("inputs") or "projection", round(_f(row.get("sim_noise") or 0.0), 6),
-            row.get("mismatch") or "")
+            row.get("smoothing") or "none", row.get("mismatch") or "")
 
 
 def load(paths) -> dict:
-    """{(system, controller, inputs, noise, mismatch): (file name, {x0: (success, cost)})} over ``paths``;
+    """{(system, controller, inputs, noise, smoothing, mismatch): (file name, {x0: (success, cost)})} over
+    ``paths``;
     raises :class:`ReportError` when a CSV mixes conditions or two CSVs hold the same ones."""
     out: dict = {}
     for p in sorted(Path(p) for p in paths):
@@ -76,21 +78,33 @@ def _cell(runs: dict | None, oracle: dict | None) -> tuple[str, str]:
 
 def table(paths) -> str:
     """The Markdown robustness table: per system and perturbation (G known or regressed, noise, plant), the
-    LMPC's and LQR's successes and J / J_oracle (median / worst), and the oracle's successes."""
+    LMPC's and LQR's successes and J / J_oracle (median / worst), and the oracle's successes.  Where no oracle ran
+    under a row's noise, the ratios are against the noise-free oracle on the same plant, marked †."""
     data = load(paths)
     lines = ["| system | G | noise σ | plant | LMPC success | LMPC J/J* median / worst | LQR success "
              "| LQR J/J* median / worst | oracle success |",
              "|---|---|---:|---|---:|---:|---:|---:|---:|"]
-    conds = sorted({(s, i, n, m) for (s, c, i, n, m) in data if c == "lmpc"},
-                   key=lambda k: (k[0], k[3] != "", k[1] != "projection", k[2], k[3]))
-    for system, inputs, noise, mism in conds:
-        lmpc = data[(system, "lmpc", inputs, noise, mism)][1]
-        base = lambda c: next((v[1] for k, v in data.items() if k[:2] == (system, c) and k[3:] == (noise, mism)),  # noqa: E731
-                              None)
-        oracle, lqr = base("nmpc"), base("lqr")
+    conds = sorted({(s, i, n, sm, m) for (s, c, i, n, sm, m) in data if c == "lmpc"},
+                   key=lambda k: (k[0], k[4] != "", k[1] != "projection", k[2], k[3] != "none", k[3], k[4]))
+
+    def base(system, controller, noise, mism):  # the true-model references ignore how the data were treated
+        return next((v[1] for k, v in data.items() if k[:2] == (system, controller) and k[3] == noise
+                     and k[5] == mism), None)
+
+    for system, inputs, noise, smooth, mism in conds:
+        lmpc = data[(system, "lmpc", inputs, noise, smooth, mism)][1]
+        oracle, lqr = base(system, "nmpc", noise, mism), base(system, "lqr", noise, mism)
+        mark = ""
+        if oracle is None and noise != 0:  # no oracle under this noise: the noise-free one on the same plant
+            oracle = base(system, "nmpc", 0.0, mism)
+            mark = " †" if oracle is not None else ""
         ls, lr = _cell(lmpc, oracle)
         qs, qr = _cell(lqr, oracle)
-        os_ = "–" if oracle is None else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}"
+        lr, qr = lr + (mark if lr[0].isdigit() else ""), qr + (mark if qr[0].isdigit() else "")
+        os_ = "–" if oracle is None or mark else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}"
         g = "known" if inputs == "projection" else "regressed"
+        if noise != 0:
+            sm = smooth.replace("Savitzky–Golay, window ", "SG ").split(",")[0]
+            g += f", data {'raw' if smooth == 'none' else sm}"
         lines.append(f"| {system} | {g} | {_noise(noise)} | {_plant(mism)} | {ls} | {lr} | {qs} | {qr} | {os_} |")
     return "\n".join(lines)

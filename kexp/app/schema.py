@@ -118,9 +118,11 @@ def _build() -> type:
 
     lmpc_s = derive(LmpcConfig)
     from ..data.noise import NoiseConfig
-    noise_s = derive(NoiseConfig)
+    from ..data.smoothing import SmoothConfig
+    noise_s, smooth_s = derive(NoiseConfig), derive(SmoothConfig)
     data_s = derive(DataConfig, extra=(("sampler", SamplerSchema, field(default_factory=SamplerSchema)),
-                                       ("noise", noise_s, field(default_factory=noise_s))))
+                                       ("noise", noise_s, field(default_factory=noise_s)),
+                                       ("smooth", smooth_s, field(default_factory=smooth_s))))
     dictionary_s = derive(Monomials, exclude=("n",), extra=(("kind", str, field(default="monomials")),))
     ident_s, clf_s = derive(IdentifyConfig), derive(ClfConfig)
     sim_s = derive(SimConfig, exclude=("dt",), extra=(

@@ -41,6 +41,8 @@ class DataReport:
     n_padded_samples: int = 0        # masked samples padding shorter recorded runs (part of n_masked_samples)
     digest: str = ""                 # of the recorded files' bytes ("" for simulated data)
     noise_std: tuple | None = None   # σ per state of the measurement noise added (kexp.data.noise); None: none
+    smoothing: str = "none"          # the filter applied before identification (kexp.data.smoothing)
+    n_unsmoothed_samples: int = 0    # kept samples in stretches shorter than the smoothing window (left as they are)
 
     def lines(self) -> list[str]:
         out = [f"trajectories: {self.n_traj} ({self.n_dropped_traj} dropped by the filter)",
@@ -53,6 +55,9 @@ class DataReport:
                           f"{self.n_padded_samples} padding sample(s) after shorter runs")
         if self.noise_std is not None:
             out.append("measurement noise σ per state: [" + ", ".join(f"{s:.4g}" for s in self.noise_std) + "]")
+        if self.smoothing != "none":
+            out.append(f"smoothed: {self.smoothing} ({self.n_unsmoothed_samples} kept sample(s) in stretches "
+                       "shorter than the window left as they are)")
         return out
 
 
@@ -154,6 +159,21 @@ class Dataset:
             n_traj=self.n_traj, n_samples=int(self.valid.size), n_pairs=self.n_pairs,
             n_masked_samples=int((~self.valid).sum()), n_dropped_traj=0, filter="none", region="all")
         return replace(self, x=noisy, report=replace(report, noise_std=tuple(float(s) for s in sigma)))
+
+    def with_smoothing(self, cfg) -> "Dataset":
+        """Each run's kept stretches filtered by ``cfg`` (a :class:`~kexp.data.smoothing.SmoothConfig`); the
+        report says which filter and how many kept samples were in stretches too short for it."""
+        from .smoothing import smooth_run
+        if not cfg.active:
+            return self
+        x, short = np.array(self.x, copy=True), 0
+        for i in range(self.n_traj):
+            x[i], s = smooth_run(self.x[i], self.valid[i], cfg)
+            short += s
+        report = self.report or DataReport(
+            n_traj=self.n_traj, n_samples=int(self.valid.size), n_pairs=self.n_pairs,
+            n_masked_samples=int((~self.valid).sum()), n_dropped_traj=0, filter="none", region="all")
+        return replace(self, x=x, report=replace(report, smoothing=cfg.describe(), n_unsmoothed_samples=short))
 
     def valid_samples(self) -> np.ndarray:
         """All kept samples, (n_valid, n)."""

@@ -22,6 +22,7 @@ from ..errors import ConfigError, DataError
 from .dataset import DataReport, Dataset
 from .files import FORMATS, DataBounds, _check_time, _read_mcap, _read_run, _run_shape, list_runs
 from .runs import Run, SampleStats, count_pairs, pair_chunks, sample_stats, split_indices
+from .smoothing import segments, smooth_run
 
 
 def _load(f: Path, fmt: str, n: int, m: int, dt: float, system_name, region_filter, x_eq):
@@ -74,6 +75,7 @@ class RecordedRuns:
     noise_sigma: np.ndarray | None = None
     noise_states: tuple | None = None
     cached_stats: tuple = field(default=())   # SampleStats of the clean full set, about 0 and x_eq
+    smooth: object = None                      # a SmoothConfig applied after the noise, run by run
 
     @property
     def n_traj(self) -> int:
@@ -104,6 +106,8 @@ class RecordedRuns:
                 rng = np.random.default_rng(0)
                 rng.bit_generator.state = self.noise_states[j]
                 x = x + rng.standard_normal((self.t_len, self.n))[: x.shape[0]] * self.noise_sigma
+            if self.smooth is not None:
+                x = smooth_run(x, ok, self.smooth)[0]
             yield Run(x, ok, u, fx)
 
     def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False):
@@ -137,6 +141,15 @@ class RecordedRuns:
         sigma = np.asarray(sigma, float)
         return replace(self, noise_sigma=sigma, noise_states=tuple(states), cached_stats=(),
                        report=replace(self.report, noise_std=tuple(float(s) for s in sigma)))
+
+    def with_smoothing(self, cfg) -> "RecordedRuns":
+        """Each run filtered by ``cfg`` (a :class:`~kexp.data.smoothing.SmoothConfig`) as it is read, after the
+        noise; one pass counts the kept samples in stretches too short for the window (the report's)."""
+        if not cfg.active:
+            return self
+        short = sum(sum(b - a for a, b in segments(r.valid) if b - a < cfg.window) for r in self.runs())
+        return replace(self, smooth=cfg, cached_stats=(),
+                       report=replace(self.report, smoothing=cfg.describe(), n_unsmoothed_samples=short))
 
     def to_dataset(self) -> Dataset:
         """The runs in one in-memory Dataset: x (n_traj, t_len, n) padded with masked NaN samples."""
