@@ -61,7 +61,8 @@ for row in "$@"; do
     mapfile -t ov < <(overrides "$row")
     rm -rf "sweeps/$row"
     echo "== $row: ${ov[*]}"
-    kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="$JOBS" logging.rrd=false "sim.x0=$X0" "${ov[@]}" \
+    # no MCAP log and no Rerun recording per run: the table needs only each run's summary.json
+    kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="$JOBS" logging.rrd=false logging.mcap=false "sim.x0=$X0" "${ov[@]}" \
         hydra.sweep.dir="sweeps/$row" > "sweeps/$row.log" 2>&1 || true
     dest=results/robustness
     [[ $row =~ ^[a-z_]+_(lmpc|lqr|nmpc)$ ]] && dest=results
