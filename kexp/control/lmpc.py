@@ -228,12 +228,13 @@ class Lmpc:
         Z, Sb = self._sensitivity(z0, Ubar)
         ub = Ubar.reshape(-1)
         Sj = Sb[:, 1:, :]                            # (nu, Np, k), a view
-        c = Z[1:] - np.tensordot(ub, Sj, axes=1)     # affine part: z_j ≈ c_j + S_j U
+        flat_z = Sj.reshape(self.nu, -1)             # (nu, Np·k), a view
+        c = Z[1:] - (ub @ flat_z).reshape(Z.shape[0] - 1, -1)   # affine part: z_j ≈ c_j + S_j U
         if self.out is not None:
             flat = (Sj @ self.out.T).reshape(self.nu, -1)
             cx = c @ self.out.T
         else:
-            flat, cx = Sj.reshape(self.nu, -1), c
+            flat, cx = flat_z, c
         H = np.empty((self.nu + 1, self.nu + 1))
         g = np.empty(self.nu + 1)
         H[: self.nu, : self.nu] = (2 * dt * cfg.w) * (flat @ flat.T) + self._cost_diag
@@ -298,7 +299,7 @@ class Lmpc:
         if active == "21e":
             # slack and binding as the QP saw them: the linearised prediction at the applied plan (an exact rollout
             # here cost 0.48 ms, a quarter of the step; the plan's exact prediction is logged when requested)
-            zl = lin_c + np.tensordot(Ubar.reshape(-1), lin_S, axes=1)
+            zl = lin_c + (Ubar.reshape(-1) @ lin_S.reshape(self.nu, -1)).reshape(lin_c.shape)
             vmax = float(np.max(np.einsum("jk,kl,jl->j", zl, self.P, zl)))
             slack = max(0.0, vmax - self.clf.r_hat)
             binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
