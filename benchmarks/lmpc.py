@@ -36,10 +36,15 @@ Threads: OMP/OPENBLAS/MKL_NUM_THREADS=1 are set before numpy is imported and ``t
 holds for the whole script (numba kernels are serial, CasADi's map is serial, MUMPS is sequential).
 OPENBLAS_CORETYPE is left as it is.
 
-Output (stdout): a Markdown header, the per-controller table, the speed ratios, the targets of the issue
-(RTI median ≤ 2 ms, p99 ≤ 10 ms; ≥ 50× faster than IPOPT at the same closed-loop cost within 1 %), and a breakdown
-of the RTI step over 200 repetitions from one state (rollout_sensitivity vs condensing vs the QP vs the rest),
-measured by wrapping those functions in this script.  Progress goes to stderr.
+``--baseline REV`` adds ``rti_old``: the RTI of kexp.control as committed at git revision REV (e.g. ef2bfbd, before
+issue 14), loaded next to today's package (``load_baseline``) and interleaved with it per IC and per repetition.
+
+Output (stdout): a Markdown header, the per-controller table, the speed ratios, the targets of issue 14 (RTI median
+≤ 0.4 ms, p99 ≤ 0.8 ms; ≥ 300× faster than IPOPT at the same closed-loop cost within 0.1 %), and a breakdown
+of the RTI step over 200 repetitions from one state (rollout and sensitivities vs condensing vs the QP vs the rest),
+measured by wrapping those functions in this script, with the step's floating-point work counted from the sizes
+(``step_flops``), the achieved GFLOP/s and the lower bound on the step time at the one-thread peak of a large
+matrix product measured in the same run (``peak_gflops``).  Progress goes to stderr.
 """
 from __future__ import annotations
 

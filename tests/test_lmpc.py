@@ -57,7 +57,8 @@ def test_rollout_is_the_exact_zero_order_hold(vdp):
 def test_polynomial_zoh_equals_the_per_step_exponential(vdp):
     """The one-input fast path (the ZOH map as a polynomial in u, its map and derivative once per move block)
     equals the per-step kernel (expm per block, a Van Loan series per step) to rounding, inside and outside the
-    polynomial's range |u| ≤ ρ (there it falls back to expm_frechet); measured ≤ 2e-14."""
+    polynomial's range |u| ≤ ρ (there it falls back to expm_frechet); measured 2e-14 in range, 4e-14 with
+    inputs up to ±7 (50 random plans each)."""
     _, model, _, _ = vdp
     lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
     zp = zoh_polynomial(lam, B, b, model.dt, 5.0)

@@ -7,6 +7,12 @@ with scaling and squaring, summed to machine precision (terms below 1e-16 relati
 respect to u_i is the corresponding block of expm([[M, E_i], [0, M]]Δ)·[0; z; 1] (Van Loan), also summed to
 machine precision.  Hence the rollout and its Jacobian are exact to rounding: no discretisation error beyond
 the zero-order hold itself, which *is* the sample-and-hold of the closed loop.
+
+Two paths.  :func:`rollout_sensitivity` (any number of inputs): E = expm(M) once per move block and the
+derivative by a Van Loan vector series once per step.  :func:`rollout_sensitivity_poly` (one input, the LMPC's
+default when the input range allows it): E(u) and dE/du from the polynomial of :mod:`kexp.control.zoh_poly`
+once per move block, applied to each step of it (matrix-vector products); the two agree to rounding (≤ 4e-14,
+tests/test_lmpc.py).
 """
 from __future__ import annotations
 
