@@ -23,8 +23,9 @@ import numpy as np
 
 from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
-from .kernels import rollout, rollout_sensitivity
+from .kernels import rollout, rollout_sensitivity, rollout_sensitivity_poly
 from .qp import DenseQp
+from .zoh_poly import zoh_polynomial
 
 STATE_COSTS = ("z", "x")
 
@@ -188,10 +189,14 @@ class Lmpc:
         self.r_diag = np.repeat(self.sizes.astype(float), self.m) * config.r
         self.x_l = np.concatenate([np.tile(self.u_min, self.nb), [0.0]])
         self.x_u = np.concatenate([np.tile(self.u_max, self.nb), [np.inf]])
+        # one input: the exact ZOH map as a polynomial in u on the input range (kexp.control.zoh_poly), so the map
+        # and its derivative cost a few matrix additions per move block; else (or out of range) the exponential
+        self.zoh = zoh_polynomial(self.lam, self.B, self.b, model.dt,
+                                  float(max(np.max(np.abs(self.u_min)), np.max(np.abs(self.u_max)))))
+        self._cost_diag = np.diag(2 * model.dt * self.r_diag) + 1e-10 * np.eye(self.nu)
         self.reset()
         # compile (or load from numba's cache) now, not inside the first control step
-        rollout_sensitivity(self.lam, self.B, self.b, model.dt, np.zeros(self.k), np.zeros((self.nb, self.m)),
-                            self.bos)
+        self._sensitivity(np.zeros(self.k), np.zeros((self.nb, self.m)))
 
     def reset(self) -> None:
         self._useq = np.zeros((self.cfg.horizon, self.m))  # per-step guess
@@ -209,35 +214,45 @@ class Lmpc:
         cost += cfg.terminal * float(Z[-1] @ self.P @ Z[-1])
         return cost + cfg.slack_weight * (s + s * s)
 
+    def _sensitivity(self, z0, Ubar):
+        """Z (Np+1, k) and Sb (nu, Np+1, k), Sb[c, j] = ∂z_j/∂vec(U)_c: the exact rollout and its sensitivities."""
+        if self.zoh is not None:
+            return rollout_sensitivity_poly(self.zoh.coef, self.zoh.rho, self.lam, self.B, self.b, self.model.dt,
+                                            z0, Ubar, self.bos)
+        Z, S = rollout_sensitivity(self.lam, self.B, self.b, self.model.dt, z0, Ubar, self.bos)
+        return Z, np.ascontiguousarray(S.transpose(2, 0, 1))
+
     def _qp_data(self, z0, Ubar, active, rhs_21f, beta0):
+        """The condensed QP at the guess Ubar: z_j ≈ c_j + S_j·vec(U) with S_j from :meth:`_sensitivity`."""
         cfg, dt = self.cfg, self.model.dt
-        Z, S = rollout_sensitivity(self.lam, self.B, self.b, dt, z0, Ubar, self.bos)
+        Z, Sb = self._sensitivity(z0, Ubar)
         ub = Ubar.reshape(-1)
-        Sj = S[1:]                                   # (Np, k, nu)
-        c = Z[1:] - Sj @ ub                          # affine part: z_j ≈ c_j + S_j U
+        Sj = Sb[:, 1:, :]                            # (nu, Np, k), a view
+        flat_z = Sj.reshape(self.nu, -1)             # (nu, Np·k), a view
+        c = Z[1:] - (ub @ flat_z).reshape(Z.shape[0] - 1, -1)   # affine part: z_j ≈ c_j + S_j U
         if self.out is not None:
-            Sx = np.einsum("nk,jku->jnu", self.out, Sj)
+            flat = (Sj @ self.out.T).reshape(self.nu, -1)
             cx = c @ self.out.T
         else:
-            Sx, cx = Sj, c
-        flat = Sx.reshape(-1, self.nu)
-        H = np.zeros((self.nu + 1, self.nu + 1))
-        g = np.zeros(self.nu + 1)
-        H[: self.nu, : self.nu] = 2 * dt * cfg.w * (flat.T @ flat) + np.diag(2 * dt * self.r_diag)
-        g[: self.nu] = 2 * dt * cfg.w * (flat.T @ cx.reshape(-1))
+            flat, cx = flat_z, c
+        H = np.empty((self.nu + 1, self.nu + 1))
+        g = np.empty(self.nu + 1)
+        H[: self.nu, : self.nu] = (2 * dt * cfg.w) * (flat @ flat.T) + self._cost_diag
+        g[: self.nu] = (2 * dt * cfg.w) * (flat @ cx.reshape(-1))
         if cfg.terminal > 0:
-            sn = S[-1]
+            sn = Sb[:, -1, :].T                      # (k, nu)
             H[: self.nu, : self.nu] += 2 * cfg.terminal * sn.T @ self.P @ sn
             g[: self.nu] += 2 * cfg.terminal * sn.T @ self.P @ (Z[-1] - sn @ ub)
+        H[: self.nu, -1] = 0.0
+        H[-1, : self.nu] = 0.0
         H[-1, -1] = 2 * cfg.slack_weight
         g[-1] = cfg.slack_weight
-        H[: self.nu, : self.nu] += 1e-10 * np.eye(self.nu)
         G = np.zeros((cfg.horizon + 1, self.nu + 1))
         h_u = np.ones(cfg.horizon + 1)  # inactive rows: 0 ≤ 1
         if active == "21e":
-            Vbar = np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:])
-            grad = 2 * Z[1:] @ self.P                # (Np, k)
-            rows = np.einsum("jk,jku->ju", grad, Sj)  # (Np, nu)
+            zP = Z[1:] @ self.P
+            Vbar = np.einsum("jk,jk->j", zP, Z[1:])
+            rows = np.einsum("jk,ujk->ju", 2 * zP, Sj)  # (Np, nu)
             G[: cfg.horizon, : self.nu] = rows
             G[: cfg.horizon, -1] = -1.0
             h_u[: cfg.horizon] = self.clf.r_hat - Vbar + rows @ ub
@@ -284,7 +299,7 @@ class Lmpc:
         if active == "21e":
             # slack and binding as the QP saw them: the linearised prediction at the applied plan (an exact rollout
             # here cost 0.48 ms, a quarter of the step; the plan's exact prediction is logged when requested)
-            zl = lin_c + lin_S @ Ubar.reshape(-1)
+            zl = lin_c + (Ubar.reshape(-1) @ lin_S.reshape(self.nu, -1)).reshape(lin_c.shape)
             vmax = float(np.max(np.einsum("jk,kl,jl->j", zl, self.P, zl)))
             slack = max(0.0, vmax - self.clf.r_hat)
             binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)

@@ -40,9 +40,9 @@ class DenseQp:
             if arr.shape != shape:
                 return f"{name} has shape {arr.shape}, expected {shape}"
         for name in ("H", "g", "G", "h_u"):
-            if not np.all(np.isfinite(shapes[name][0])):
+            if not np.isfinite(shapes[name][0]).all():
                 return f"{name} contains NaN/inf"
-        if np.any(np.isnan(x_l)) or np.any(np.isnan(x_u)) or np.any(x_l > x_u):
+        if np.isnan(x_l).any() or np.isnan(x_u).any() or (x_l > x_u).any():
             return "bounds x_l > x_u or NaN"
         return ""
 
@@ -56,7 +56,6 @@ class DenseQp:
         problem = self._check(H, g, G, h_u, x_l, x_u)
         if problem:
             return QpResult(np.full(self.n, np.nan), f"invalid_input: {problem}", False, 0, 0.0, problem)
-        h_l = np.full(self.n_ineq, -np.inf)
         t0 = time.perf_counter()
         if self._solver is None:
             s = piqp.DenseSolver()
@@ -64,10 +63,14 @@ class DenseQp:
             s.settings.eps_rel = self.eps
             s.settings.max_iter = self.max_iter
             s.settings.verbose = False
-            s.setup(H, g, None, None, G, h_l, h_u, x_l, x_u)
+            s.setup(H, g, None, None, G, np.full(self.n_ineq, -np.inf), h_u, x_l, x_u)
             self._solver = s
+            self._bounds = (x_l.copy(), x_u.copy())
+        elif np.array_equal(x_l, self._bounds[0]) and np.array_equal(x_u, self._bounds[1]):
+            self._solver.update(P=H, c=g, G=G, h_u=h_u)      # h_l = −∞ and the bounds are as set up
         else:
-            self._solver.update(P=H, c=g, G=G, h_l=h_l, h_u=h_u, x_l=x_l, x_u=x_u)
+            self._solver.update(P=H, c=g, G=G, h_u=h_u, x_l=x_l, x_u=x_u)
+            self._bounds = (x_l.copy(), x_u.copy())
         status = self._solver.solve()
         dt = time.perf_counter() - t0
         res = self._solver.result
