@@ -66,10 +66,8 @@ def _taylor_degree(theta):
 
 
 @njit(cache=True)
-def expm_small(M):
-    """expm(M) by scaling (‖M‖∞/2^s ≤ 0.5) and squaring of a Taylor polynomial whose degree p is chosen from the
-    norm so that the remainder is below rounding, evaluated by Paterson–Stockmeyer (about 2√p matrix products
-    instead of p)."""
+def _scaling(M):
+    """(s, ‖M‖∞/2^s): the smallest s ≥ 0 with ‖M‖∞/2^s ≤ 0.5 (the scaling of scaling and squaring)."""
     n = M.shape[0]
     nrm = 0.0
     for i in range(n):
@@ -81,6 +79,16 @@ def expm_small(M):
     while nrm > 0.5:
         nrm *= 0.5
         s += 1
+    return s, nrm
+
+
+@njit(cache=True)
+def expm_small(M):
+    """expm(M) by scaling (‖M‖∞/2^s ≤ 0.5) and squaring of a Taylor polynomial whose degree p is chosen from the
+    norm so that the remainder is below rounding, evaluated by Paterson–Stockmeyer (about 2√p matrix products
+    instead of p)."""
+    n = M.shape[0]
+    s, nrm = _scaling(M)
     A = M * (0.5 ** s)
     p = _taylor_degree(nrm)
     q = max(1, int(np.ceil(np.sqrt(p + 1.0))))
@@ -233,16 +241,7 @@ def expm_frechet(M, D, E, L):
     (A^j, ∂A^j) (product rule), with one degree more than :func:`expm_small` so that the derivative's remainder
     is below rounding too.  Used by :func:`rollout_sensitivity_poly` for inputs outside its polynomial's range."""
     n = M.shape[0]
-    nrm = 0.0
-    for i in range(n):
-        row = 0.0
-        for j in range(n):
-            row += abs(M[i, j])
-        nrm = max(nrm, row)
-    s = 0
-    while nrm > 0.5:
-        nrm *= 0.5
-        s += 1
+    s, nrm = _scaling(M)
     sc = 0.5 ** s
     p = _taylor_degree(nrm) + 1
     A = M * sc
