@@ -6,9 +6,9 @@
 #   results/robustness.sh ROW [ROW ...]     # e.g. vanderpol_lmpc-reg-noise1 pendulum_nmpc-noise3
 #   results/robustness.sh --list            # every row this script knows
 #
-# Row names: <system>_<controller>[-reg][-noise1|-noise3][-raw][-mu0.8|-mu1.2|-c0.008|-c0.012]; -reg: B, b regressed
+# Row names: <system>_<controller>[-reg][-noise1|-noise3][-raw|-sgN][-mu0.8|...|-c0.012]; -reg: B, b regressed
 # from excited data (G unknown); -noiseN: N % Gaussian noise (of the data's RMS) on the data and the closed loop's
-# measurements, the data smoothed before identification (data.smooth.window=21) unless -raw; mu…/c…: the
+# measurements, the data smoothed before identification (data.smooth.window=7, or N with -sgN) unless -raw; mu…/c…: the
 # plant's parameter (Van der Pol μ = 1, pendulum c = 0.01) 20 % off the data's system.
 # The table (`kexp-results robustness results/*.csv`) reads the conditions from the runs' summaries, not from
 # these names.
@@ -27,7 +27,7 @@ overrides() {  # ROW -> the kexp overrides of that row
         nmpc) out+=(controller=nmpc controller.horizon=20) ;;
         *) echo "unknown controller in row $row" >&2; return 2 ;;
     esac
-    local tok smooth=0 raw=0
+    local tok smooth=0 raw=0 win=7
     IFS=- read -ra toks <<< "${rest#"$ctrl"}"
     for tok in "${toks[@]}"; do
         case $tok in
@@ -36,13 +36,14 @@ overrides() {  # ROW -> the kexp overrides of that row
             noise1) out+=(data.noise.std=0.01 sim.noise.std=0.01); smooth=1 ;;
             noise3) out+=(data.noise.std=0.03 sim.noise.std=0.03); smooth=1 ;;
             raw) raw=1 ;;
+            sg[0-9]*) win=${tok#sg} ;;
             mu0.8|mu1.2) out+=("+sim.plant_params.mu=${tok#mu}") ;;
             c0.008|c0.012) out+=("+sim.plant_params.c=${tok#c}") ;;
             *) echo "unknown token $tok in row $row" >&2; return 2 ;;
         esac
     done
     # noisy data are smoothed before identification (data.smooth), unless the row says raw
-    [ $smooth = 1 ] && [ $raw = 0 ] && out+=(data.smooth.window=21)
+    [ $smooth = 1 ] && [ $raw = 0 ] && out+=("data.smooth.window=$win")
     printf '%s\n' "${out[@]}"
 }
 
