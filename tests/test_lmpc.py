@@ -203,6 +203,37 @@ def test_sqp_converges_and_rti_is_close(vdp):
     assert rti.iterations == 1 and np.sign(rti.u[0]) == np.sign(st.u[0])
 
 
+def test_iterate_only_where_a_constraint_binds(vdp):
+    """iterate_when='binding': a step whose first QP has no bound and no Lyapunov row active stops after it (the
+    real-time iteration's input, exactly); a step with one active iterates exactly like 'always'.  With r̂ = r
+    (the working presets) from ICS[0]: the first ~0.2 s saturate at u = -5 and iterate, the rest do not."""
+    s, model, _, _ = vdp
+    clf = synthesize_clf(model, ClfConfig(rhat_floor=1.0))
+    h = make_law("sontag", clf.lyap, -5.0, 5.0)
+    cfg = LmpcConfig(max_iter=10, tol=1e-7, iterate_when="binding")
+    run = closed_loop(s, Lmpc(model, clf, h, cfg, -5.0, 5.0), ICS[0], SimConfig(T=3.0), model=model,
+                      lyap=clf.lyap)
+    its = np.array([r.iterations for r in run.records])
+    u = np.array([r.u[0] for r in run.records])
+    assert run.status == "completed" and its.max() > 1 and np.sum(its == 1) > 200
+    assert np.all(np.abs(u[its > 1]) > 4.9) or np.any([r.binds for r in run.records])
+    # replayed from a cold start: 'binding' gives RTI's input where it stopped after one QP, and exactly
+    # the 'always' SQP's input (and iteration count) where it went on
+    seen = {True: 0, False: 0}
+    for rec in run.records[:60:3] + run.records[100::40]:
+        ctrls = [Lmpc(model, clf, h, c, -5.0, 5.0) for c in
+                 (cfg, dataclasses.replace(cfg, iterate_when="always"), dataclasses.replace(cfg, max_iter=1))]
+        o, a, r = (c.step(rec.x, rec.z) for c in ctrls)
+        if o.iterations == 1:
+            assert np.array_equal(o.u, r.u)
+        else:
+            assert np.array_equal(o.u, a.u) and o.iterations == a.iterations
+        seen[o.iterations > 1] += 1
+    assert seen[True] > 0 and seen[False] > 0
+    with pytest.raises(ConfigError, match="iterate_when"):
+        LmpcConfig(iterate_when="sometimes")
+
+
 def test_vanderpol_closed_loop_success_on_fixed_sample(vdp):
     """Issue target: ≥ 95 % of ICs in [-1, 1]² reach ‖x(10)‖ < 1e-2 with |u| ≤ 5; here the first 10 of the
     design study's 100 ICs (measured: 10/10, median cost 4.57)."""

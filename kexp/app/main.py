@@ -140,6 +140,16 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     check_memory_budget(spec, k_max, system.m)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
+    # where the job's time goes (summary.json "timing", benchmarks/sweep.py): seconds per phase, in order
+    phases: dict[str, float] = {}
+    mark = [t0]
+
+    def phase(name: str) -> None:
+        now = time.perf_counter()
+        phases[name] = phases.get(name, 0.0) + now - mark[0]
+        mark[0] = now
+
+    phase("setup_s")
 
     def identify_now():
         dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
@@ -159,6 +169,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
                                 KoopmanBilinearModel.load)
     model_path = model.save(out_dir / "model.npz")
+    phase("model_s")
     echo(model.summary())
     rms = model.report.get("data_rms")
     perturbation = _perturbation(system, plant_params, model, sim_cfg)
@@ -169,10 +180,12 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
                                law_params=spec.law_params),
         save_clf, lambda p: load_clf(p, model, clf_cfg))
+    phase("clf_s")
     # the true-model baselines (LQR, NMPC oracle) know the plant they control, mismatch included
     controller = build_controller(spec, plant, model, clf,
                                   prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0)
     echo(clf.summary())
+    phase("controller_s")   # includes loading the compiled kernels (numba's cache) on a worker's first job
     logger = None
     if log_cfg["mcap"]:
         logger = RunLogger(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
@@ -181,12 +194,16 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         logger.log_model(model)
         omega_r = level_set_boundary(model, clf.lyap, clf.r)
         logger.log_clf(clf, omega_r, omega_r if clf.r_hat == clf.r else level_set_boundary(model, clf.lyap, clf.r_hat))
+    phase("log_setup_s")
+    log_seconds = [0.0]
     bar = Progress(sim_cfg.n_steps, f"{system.name} closed loop",
                    enabled=auto_progress if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
 
     def on_step(rec, step):
         if logger is not None:
+            start = time.perf_counter()
             logger.log_step(rec, step, model)
+            log_seconds[0] += time.perf_counter() - start
         bar.update()
 
     try:
@@ -195,6 +212,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
                                  on_step=on_step, noise_scale=rms)
     finally:
         bar.close()
+    phase("closed_loop_s")
+    control_s = float(sum(r.solve_time for r in result.records))
     m = result.metrics
     mdict = m.to_dict()
     deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
@@ -240,6 +259,11 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         "wall_time_s": time.perf_counter() - t0,
         "files": files,
     }
+    phase("finish_s")   # the log's last messages, the Rerun recording, the summary
+    phases["closed_loop"] = {"control_s": control_s, "integrate_s": result.integrate_s,
+                             "logging_s": log_seconds[0]}
+    metrics["timing"] = phases
+    metrics["wall_time_s"] = time.perf_counter() - t0
     summary_path.write_text(json.dumps(plain(metrics), indent=2))
     echo(f"result: {'SUCCESS' if m.success else 'FAILED'} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
          f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "

@@ -28,6 +28,7 @@ from .qp import DenseQp
 from .zoh_poly import zoh_polynomial
 
 STATE_COSTS = ("z", "x")
+ITERATE_WHEN = ("always", "binding")
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,9 @@ class LmpcConfig:
     ``lmpc.<key>`` otherwise): ``horizon`` Np steps of the model's Δ; weights ``w`` > 0 on the state (on z, or on
     x = Cz with ``state_cost='x'``) and ``r`` > 0 on u; ``terminal`` w_T ≥ 0 on V(z_Np); move blocking with
     ``free_moves`` single-step moves then ``blocks`` blocks in all (``blocks=None``: no blocking); ``max_iter``
-    SQP iterations per step (1: real-time iteration) stopping at step size ``tol``; ``slack_weight`` ρ of the
+    SQP iterations per step (1: real-time iteration) stopping at step size ``tol``; ``iterate_when`` 'always'
+    (up to ``max_iter`` in every step) or 'binding' (past the first QP only when its solution has an input bound or
+    a Lyapunov constraint active: the real-time iteration elsewhere); ``slack_weight`` ρ of the
     softened (21e); ``use_21e`` / ``use_21f`` switch those constraints; ``qp_eps``, ``qp_max_iter`` for PIQP."""
 
     horizon: int = 100
@@ -48,6 +51,7 @@ class LmpcConfig:
     blocks: int | None = 20
     max_iter: int = 1
     tol: float = 1e-6
+    iterate_when: str = "always"
     slack_weight: float = 1e4
     use_21e: bool = True
     use_21f: bool = True
@@ -69,6 +73,8 @@ class LmpcConfig:
             raise ConfigError(f"lmpc.terminal={self.terminal}: use a finite number >= 0")
         if self.max_iter < 1:
             raise ConfigError(f"lmpc.max_iter={self.max_iter}: use an int >= 1 (1 = real-time iteration)")
+        if self.iterate_when not in ITERATE_WHEN:
+            raise ConfigError(f"lmpc.iterate_when={self.iterate_when!r}; valid: {ITERATE_WHEN}")
         if not self.slack_weight > 0:
             raise ConfigError(f"lmpc.slack_weight={self.slack_weight}: use a number > 0")
         block_sizes(self.horizon, self.free_moves, self.blocks)  # validates the blocking
@@ -286,6 +292,8 @@ class Lmpc:
             if cfg.max_iter > 1:
                 Unew = self._line_search(z0, Ubar, step, active, beta0, rhs_21f)
             done = np.max(np.abs(Unew - Ubar)) <= cfg.tol
+            if it == 1 and cfg.iterate_when == "binding" and not self._qp_binds(res.x, Unew, G, h_u):
+                done = True   # nothing active: the real-time iteration's answer is the step's
             Ubar = np.ascontiguousarray(Unew)
             if done:
                 break
@@ -312,6 +320,13 @@ class Lmpc:
         return ControlStep(u=u0, status="solved", qp_status=res.status, iterations=it, qp_iterations=qp_iters,
                            solve_time=time.perf_counter() - t0, region=region, active=active, binds=bool(binds),
                            slack=slack, fallback=False, reason="", predicted=Z)
+
+    def _qp_binds(self, xsol, U, G, h_u) -> bool:
+        """Whether the QP's solution has an input bound or a (linearised) Lyapunov constraint active."""
+        span = self.u_max - self.u_min
+        if np.any(U <= self.u_min + 1e-6 * span) or np.any(U >= self.u_max - 1e-6 * span):
+            return True
+        return bool(np.any(G @ xsol - h_u >= -1e-6 * np.maximum(1.0, np.abs(h_u))))
 
     def _line_search(self, z0, Ubar, step, active, beta0, rhs_21f):
         """Backtracking on the exact merit: cost + slack penalty of (21e) + ρ·violation of (21f) (the warm start

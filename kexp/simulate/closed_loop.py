@@ -2,7 +2,7 @@
 
 At t_k the controller sees the measured state x̃_k = x(t_k) + v_k (and z = Ψ(x̃_k) − Ψ(x_eq) if a model is
 given), returns u_k, and the true system (the plant: it may differ from the system the data came from, see
-``sim.plant_params``) is integrated accurately (adaptive DOP853) over [t_k, t_k + Δ) with u_k + w_k held.
+``sim.plant_params``) is integrated accurately (adaptive DOP853, :class:`~kexp.simulate.stepper.HeldInputStepper`) over [t_k, t_k + Δ) with u_k + w_k held.
 v_k ~ N(0, diag σ_v²) is the measurement noise (``SimConfig.noise``, 0 by default), w_k ~ N(0, diag σ_w²) the
 process disturbance added to the input channel, piecewise constant over each step (``SimConfig.disturbance``,
 0 by default); each has its own ``default_rng(seed)``.  Arrays: t (T+1,), x (T+1, n), u (T, m), z (T+1, k).
@@ -17,6 +17,7 @@ import numpy as np
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
 from ..data.noise import NoiseConfig, _check_std, _std_active, _std_vector
 from ..errors import ConfigError, require_number
+from .stepper import HeldInputStepper
 
 
 @dataclass(frozen=True)
@@ -135,7 +136,8 @@ class RunResult:
     """What :func:`closed_loop` returns (frozen): ``status`` 'completed' or 'diverged' with its ``message``
     ('' when completed), ``t`` (K+1,), ``x`` (K+1, n), ``u`` (K, m) for the K steps run (fewer than n_steps if
     diverged), one :class:`StepRecord` per step in ``records``, the :class:`RunMetrics`, and ``open_loop``
-    (n_steps+1, n) the unforced trajectory from x0 when asked for (None otherwise, or if it failed)."""
+    (n_steps+1, n) the unforced trajectory from x0 when asked for (None otherwise, or if it failed), and
+    ``integrate_s`` the wall-clock seconds spent integrating the plant (a job's time breakdown)."""
 
     status: str              # 'completed' or 'diverged'
     message: str
@@ -145,6 +147,7 @@ class RunResult:
     records: tuple
     metrics: RunMetrics
     open_loop: np.ndarray | None = None
+    integrate_s: float = 0.0
 
 
 def run_cost(t, x, u, x_eq, r) -> float:
@@ -194,6 +197,7 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     rng_v = np.random.default_rng(config.noise.seed)
     rng_w = np.random.default_rng(config.disturbance.seed)
     controller.reset()
+    stepper = HeldInputStepper(system, config.integrator)
     last = n_steps
     for k in range(n_steps):
         x_meas = xs[k] + sigma_v * rng_v.standard_normal(system.n) if sigma_v is not None else xs[k].copy()
@@ -216,7 +220,7 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
             on_step(rec, step)
         try:
             u_plant = u if w is None else u + w
-            nxt = integrate(system, xs[k][None], t[k:k + 2], u_plant[None, None], config.integrator)[0, 1]
+            nxt = stepper.step(xs[k], u_plant, float(t[k]), float(t[k + 1]))
         except IntegrationFailure as exc:
             status, message, last = "diverged", f"integration failed at t={t[k]:.3f}: {exc}", k
             break
@@ -232,4 +236,5 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
         except IntegrationFailure:
             ol = None
     return RunResult(status=status, message=message, t=t, x=xs, u=us, records=tuple(records),
-                     metrics=_metrics(t, xs, us, records, x_eq, config), open_loop=ol)
+                     metrics=_metrics(t, xs, us, records, x_eq, config), open_loop=ol,
+                     integrate_s=stepper.seconds)

@@ -1,0 +1,50 @@
+"""The closed loop's one-step integrator (kexp.simulate.stepper): the same DOP853 step as solve_ivp's, without
+its per-call overhead; exact on a linear system; failures raised, not returned."""
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+from kexp.data import IntegratorOptions, integrate
+from kexp.data.integrate import IntegrationFailure
+from kexp.simulate.stepper import HeldInputStepper
+from kexp.systems import Linear, Pendulum, VanDerPol
+
+
+@pytest.mark.parametrize("system", [VanDerPol(), Pendulum()], ids=lambda s: s.name)
+def test_agrees_with_solve_ivp(system):
+    """Both are Hairer's DOP853 with the same tolerances: on 200 random states and inputs they agree far below
+    rtol = 1e-10 (measured: to 2.2e-16, the same steps)."""
+    opts = IntegratorOptions(batch=1)
+    stepper = HeldInputStepper(system, opts)
+    rng = np.random.default_rng(0)
+    worst = 0.0
+    for _ in range(200):
+        x, u = rng.uniform(-2, 2, 2), rng.uniform(-5, 5, 1)
+        ref = integrate(system, x[None], np.array([0.0, 0.01]), u[None, None], opts)[0, 1]
+        worst = max(worst, float(np.max(np.abs(stepper.step(x, u, 0.0, 0.01) - ref))))
+    assert worst < 1e-12
+
+
+@pytest.mark.parametrize("method", ["DOP853", "RK45", "Radau"])
+def test_exact_on_a_linear_system(method):
+    """x(t+Δ) = e^{AΔ}x + ∫e^{As}ds·Bu on a linear plant, for the fast path (DOP853, RK45) and the fallback."""
+    s = Linear(A=((0.0, 1.0), (-2.0, -0.3)), B=((0.0,), (1.0,)))
+    aug = np.zeros((3, 3))
+    aug[:2, :2], aug[:2, 2:] = np.asarray(s.A), np.asarray(s.B)
+    e = sla.expm(aug * 0.05)
+    stepper = HeldInputStepper(s, IntegratorOptions(method=method, batch=1))
+    x = np.array([1.0, -0.5])
+    for k, u in enumerate(np.random.default_rng(1).uniform(-1, 1, (20, 1))):
+        nxt = stepper.step(x, u, 0.05 * k, 0.05 * (k + 1))
+        assert np.max(np.abs(nxt - (e[:2, :2] @ x + e[:2, 2:] @ u))) < 1e-10
+        x = nxt
+
+
+def test_blow_up_raises():
+    """ẋ = x² from x = 1 leaves the floats before t = 1: IntegrationFailure, with the interval in the message."""
+    class Square(Linear):
+        def drift(self, x):
+            return np.asarray(x, float) ** 2
+    stepper = HeldInputStepper(Square(A=((0.0, 0.0), (0.0, 0.0))), IntegratorOptions(batch=1))
+    with pytest.raises(IntegrationFailure, match=r"\[0, 2\]"):
+        stepper.step(np.array([1.0, 1.0]), np.zeros(1), 0.0, 2.0)
