@@ -8,6 +8,8 @@
 
     kexp-figures paper RUN.mcap -o fig.png
     kexp-figures roa SWEEP_DIR -o roa.png
+    kexp-figures roa RESULTS.csv [...] --oracle ORACLE.csv -o map.png   (region map: cost ratio to the oracle,
+                                                                         kexp/analysis/region_map.py)
     kexp-figures theorem1 RUN_DIR -o thm1.png      (RUN_DIR holds run.mcap and model.npz)
 """
 from __future__ import annotations
@@ -117,14 +119,30 @@ def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(prog="kexp-figures", description="Figures from kexp logs and sweeps.")
     p.add_argument("kind", choices=["paper", "roa", "theorem1"])
-    p.add_argument("source", help="run.mcap (paper), a sweep folder (roa), a run folder (theorem1)")
+    p.add_argument("source", nargs="+", help="run.mcap (paper), a sweep folder or results CSVs (roa), a run folder "
+                   "(theorem1)")
     p.add_argument("-o", "--out", required=True, help="the PNG to write")
+    p.add_argument("--oracle", help="roa from results CSVs: the oracle's CSV over the same x0 (a region map)")
     args = p.parse_args(argv)
+    csvs = [s for s in args.source if s.endswith(".csv")]
+    if args.kind == "roa" and (csvs or args.oracle):
+        if len(csvs) != len(args.source) or not args.oracle:
+            p.error("a region map takes results CSVs only (kexp-results collect) and --oracle ORACLE.csv")
+    elif len(args.source) != 1:
+        p.error(f"{args.kind} takes one source, got {len(args.source)}")
+    source = args.source[0]
     try:
         if args.kind == "paper":
-            out = paper_figure(args.source, args.out)
+            out = paper_figure(source, args.out)
+        elif args.kind == "roa" and args.oracle:
+            from .region_map import region_map
+            out, panels = region_map(args.source, args.oracle, args.out)
+            for f in panels:
+                print(f"{f['label']}: success {f['successes']}/{f['runs']}, where the oracle succeeds "
+                      f"{f['both']}/{f['oracle_successes']}, J/J_oracle median {f['median_ratio']:.3f}, worst "
+                      f"{f['worst_ratio']:.3f}")
         elif args.kind == "roa":
-            out, facts = roa_figure(args.source, args.out)
+            out, facts = roa_figure(source, args.out)
             for g in facts["groups"]:
                 print(f"{g['label']}: n = {g['n']}, success {g['successes']}/{g['runs']}"
                       + (f" ({g['runs'] - g['drawn']} without a usable x0, not drawn)" if g["drawn"] < g["runs"]
@@ -134,7 +152,7 @@ def main(argv=None) -> None:
             if len(facts["failed"]) > 20:
                 print(f"  ... and {len(facts['failed']) - 20} more (kexp-report lists them all)")
         else:
-            out, facts = theorem1_figure(args.source, args.out)
+            out, facts = theorem1_figure(source, args.out)
             print(f"ν = {facts['nu']:.4g}, l_x = {facts['l_x']:.4g}, max error/bound = "
                   f"{facts['max_ratio_error_to_bound']:.3g}")
     except (KexpError, LogError, OSError, KeyError) as exc:  # e.g. the run's own system module not importable

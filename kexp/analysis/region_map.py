@@ -1,0 +1,145 @@
+"""Region maps against the oracle: where each controller succeeds over the initial conditions of a results
+sweep, coloured by its cost ratio to the true-model NMPC oracle on the same x0, with the oracle's own success
+region outlined.
+
+Input: condensed results CSVs (``kexp-results collect``; committed under ``results/``), one per controller, and
+the oracle's CSV over the same initial conditions.  One panel per controller:
+
+- a filled circle per x0 where it succeeded, its colour the cost ratio J / J_oracle (clipped to [1, ``vmax``]);
+- a red × where it failed (no success, diverged or a failed job), a grey + where the oracle's cost is unknown
+  (the oracle failed there or did not run that x0);
+- the oracle's success region outlined: the 0.5 level of its success indicator interpolated over the x0
+  (a Delaunay triangulation); when the oracle succeeded from every x0 there is no outline and the title says
+  'everywhere'.
+
+    kexp-figures roa results/regions/vanderpol_lmpc.csv results/regions/vanderpol_lqr.csv \\
+        --oracle results/regions/vanderpol_nmpc.csv -o docs/figures/region_vanderpol.png
+"""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import KexpError
+
+VMAX = 1.3   # ratios above this share the top colour
+
+
+class RegionMapError(KexpError):
+    """The CSVs cannot be drawn as a region map (unreadable, missing columns, no common initial conditions)."""
+
+
+NEEDED = ("x0_1", "x0_2", "status", "success", "cost")
+
+
+def read_results(path: str | Path) -> dict[tuple[float, float], dict]:
+    """{x0: {'ok': completed, 'success': bool, 'cost': float}} from a results CSV; RegionMapError names what is
+    wrong with the file."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as exc:
+        raise RegionMapError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    missing = [c for c in NEEDED if rows and c not in rows[0]]
+    if not rows or missing:
+        raise RegionMapError(f"{path}: not a results CSV (kexp-results collect): "
+                             + (f"missing columns {missing}" if rows else "no rows"))
+    out = {}
+    for r in rows:
+        if r["x0_1"] in ("", None) or r["x0_2"] in ("", None):
+            continue  # a failed job without a known x0 cannot be placed
+        key = (float(r["x0_1"]), float(r["x0_2"]))
+        cost = float(r["cost"]) if r["cost"] not in ("", None) else float("nan")
+        out[key] = {"ok": r["status"] == "completed", "success": r["success"] == "True", "cost": cost}
+    return out
+
+
+def compare(runs: dict, oracle: dict) -> dict:
+    """Per controller: successes, where the oracle succeeded and this controller too, and the cost ratios
+    (successful runs on x0 where the oracle succeeded)."""
+    keys = [k for k in runs if k in oracle]
+    o_ok = [k for k in keys if oracle[k]["success"]]
+    ratios = np.array([runs[k]["cost"] / oracle[k]["cost"] for k in o_ok if runs[k]["success"]])
+    return {"runs": len(runs), "common": len(keys), "successes": sum(r["success"] for r in runs.values()),
+            "oracle_successes": len(o_ok), "both": int(sum(runs[k]["success"] for k in o_ok)),
+            "median_ratio": float(np.median(ratios)) if ratios.size else float("nan"),
+            "worst_ratio": float(np.max(ratios)) if ratios.size else float("nan")}
+
+
+def _label(path: Path) -> str:
+    return path.stem.replace("_", ": ", 1)
+
+
+def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, vmax: float = VMAX
+               ) -> tuple[Path, list[dict]]:
+    """Draw one panel per CSV in ``csvs`` against the oracle's CSV into the PNG ``out``.  Returns (out, facts),
+    one dict of :func:`compare` (plus 'label') per panel.  RegionMapError if a file is unreadable or shares no
+    initial condition with the oracle."""
+    oracle = Path(oracle)
+    ref = read_results(oracle)
+    panels = []
+    for p in map(Path, csvs):
+        runs = read_results(p)
+        facts = compare(runs, ref)
+        if facts["common"] == 0:
+            raise RegionMapError(f"{p}: no initial condition in common with the oracle's {oracle}: run both over "
+                                 "the same sim.x0")
+        panels.append((p, runs, {"label": _label(p), **facts}))
+    plt = _plt()
+    from matplotlib.tri import Triangulation
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels) + 1.0, 4.9), squeeze=False)
+    pts = np.array(list(ref))
+    o_succ = np.array([ref[k]["success"] for k in ref], float)
+    tri = Triangulation(pts[:, 0], pts[:, 1]) if len(pts) >= 3 else None
+    sc = None
+    for ax, (p, runs, facts) in zip(axes[0], panels):
+        keys = list(runs)
+        x = np.array(keys)
+        good = [k for k in keys if runs[k]["success"] and k in ref and ref[k]["success"]]
+        unknown = [k for k in keys if runs[k]["success"] and not (k in ref and ref[k]["success"])]
+        bad = [k for k in keys if not runs[k]["success"]]
+        if good:
+            g = np.array(good)
+            ratio = np.array([runs[k]["cost"] / ref[k]["cost"] for k in good])
+            sc = ax.scatter(g[:, 0], g[:, 1], c=np.clip(ratio, 1.0, vmax), cmap="viridis", vmin=1.0, vmax=vmax,
+                            s=22, edgecolors="none")
+        if unknown:
+            u = np.array(unknown)
+            ax.scatter(u[:, 0], u[:, 1], marker="+", color="0.4", s=30, label=f"no oracle cost ({len(u)})")
+        if bad:
+            b = np.array(bad)
+            ax.scatter(b[:, 0], b[:, 1], marker="x", color="tab:red", s=30, label=f"no success ({len(b)})")
+        if tri is not None and 0 < o_succ.sum() < len(o_succ):
+            ax.tricontour(tri, o_succ, levels=[0.5], colors="k", linewidths=1.2)
+            ax.plot([], [], "k-", lw=1.2, label="oracle's success region")
+        where = "everywhere" if o_succ.all() else "where the oracle succeeds"
+        ax.set_title(f"{facts['label']}: {facts['successes']}/{facts['runs']} succeed\n"
+                     f"{where}: {facts['both']}/{facts['oracle_successes']}\n"
+                     f"J/J_oracle median {facts['median_ratio']:.3f}, worst {facts['worst_ratio']:.3f}", fontsize=8)
+        ax.set_xlabel("x1(0)")
+        ax.set_ylabel("x2(0)")
+        ax.set_aspect("equal", adjustable="box")
+        if x.size:
+            for i, setter in ((0, ax.set_xlim), (1, ax.set_ylim)):
+                pad = 0.05 * (np.ptp(x[:, i]) + 1e-9)
+                setter(x[:, i].min() - pad, x[:, i].max() + pad)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="lower right")
+    if sc is not None:
+        bar = fig.colorbar(sc, ax=axes[0].tolist(), shrink=0.85)
+        bar.set_label(f"J / J_oracle (clipped to [1, {vmax:g}])")
+    fig.suptitle(f"success and cost against the true-model oracle ({_label(oracle)}, {len(ref)} x0)", fontsize=10)
+    out = Path(out)
+    fig.savefig(out, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return out, [f for *_, f in panels]
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt

@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# The sweeps behind the README's far-region and tight-bound tables (issue 13): 100 initial conditions per row from
+# np.random.default_rng(42).uniform(-2, 2, (2, 100)) -- the whole data region, not only [-1, 1]² -- each condensed
+# into results/regions/<row>.csv.
+#
+#   results/regions.sh ROW [ROW ...]     # e.g. vanderpol_lmpc pendulum-u1_nmpc
+#   results/regions.sh --list            # every row this script knows
+#
+# Row names: <system>[-uN]_<controller>: the working preset +experiment=<system>; -uN: the input bound |u| ≤ N
+# (controller.u_min=-N, controller.u_max=N) for every controller of the row, oracle included; controller lmpc
+# (the preset's), lqr (saturated LQR on the true linearisation) or nmpc (the true-model oracle, horizon 20).
+# The table: kexp-results table results/regions/*.csv; the maps: kexp-figures roa ... --oracle ..._nmpc.csv.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+X0=$(python -c "import numpy as np; ics=np.random.default_rng(42).uniform(-2,2,(2,100)).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))")
+JOBS=${KEXP_SWEEP_JOBS:-2}
+mkdir -p sweeps results/regions
+
+overrides() {  # ROW -> the kexp overrides of that row
+    local row=$1 head=${1%%_*} ctrl=${1#*_}
+    local system=${head%%-*} out=()
+    out+=("+experiment=$system")
+    case $ctrl in
+        lmpc) ;;
+        lqr) out+=(controller=lqr) ;;
+        nmpc) out+=(controller=nmpc controller.horizon=20) ;;
+        *) echo "unknown controller in row $row" >&2; return 2 ;;
+    esac
+    if [[ $head == *-u* ]]; then
+        local bound=${head#*-u}
+        [[ $bound =~ ^[0-9]+(\.[0-9]+)?$ ]] || { echo "bad bound in row $row" >&2; return 2; }
+        out+=("controller.u_min=-$bound" "controller.u_max=$bound")
+    fi
+    printf '%s\n' "${out[@]}"
+}
+
+ROWS=()
+for s in vanderpol pendulum; do
+    for c in lmpc lqr nmpc; do ROWS+=("${s}_$c"); done
+done
+
+if [ "${1:-}" = "--list" ]; then printf '%s\n' "${ROWS[@]}" "(and <system>-uN_<controller> for a bound N)"; exit 0; fi
+for row in "$@"; do
+    mapfile -t ov < <(overrides "$row")
+    [ ${#ov[@]} -gt 0 ] || exit 2
+    rm -rf "sweeps/regions/$row"
+    echo "== $row: ${ov[*]}"
+    # no MCAP log and no Rerun recording per run: the table and the maps need only each run's summary.json
+    kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="$JOBS" logging.rrd=false logging.mcap=false "sim.x0=$X0" "${ov[@]}" \
+        hydra.sweep.dir="sweeps/regions/$row" > "sweeps/regions-$row.log" 2>&1 || true
+    kexp-results collect "sweeps/regions/$row" "$row" -o results/regions || echo "== $row: no results (see sweeps/regions-$row.log)"
+done
