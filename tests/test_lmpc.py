@@ -99,6 +99,22 @@ def test_zoh_polynomial_declines_what_it_cannot_do(vdp):
     assert zoh_polynomial(model.Lambda, model.B, model.b, model.dt, 1e4) is None
 
 
+def test_zoh_polynomial_is_computed_once_per_model_and_range(vdp):
+    """A sweep worker builds one LMPC per job on the same model: the coefficients come from a memo keyed by the
+    inputs' bits, so a changed model or input range gets its own (equal to a fresh computation)."""
+    from kexp.control import zoh_poly
+    _, model, _, _ = vdp
+    first = zoh_polynomial(model.Lambda, model.B, model.b, model.dt, 5.0)
+    assert zoh_polynomial(model.Lambda.copy(), model.B.copy(), model.b.copy(), model.dt, 5.0) is first
+    other = zoh_polynomial(model.Lambda, model.B, model.b, model.dt, 2.0)
+    assert other is not first and other.rho == 2.0
+    nudged = model.Lambda.copy()
+    nudged[0, 0] += 1e-12
+    again = zoh_polynomial(nudged, model.B, model.b, model.dt, 5.0)
+    fresh = zoh_poly._coefficients(nudged, model.B, model.b, model.dt, 5.0)
+    assert again is not first and np.array_equal(again.coef, fresh.coef)
+
+
 def test_lmpc_fast_path_closed_loop_equals_the_per_step_kernel(vdp):
     """The RTI closed loop with the polynomial fast path and with the per-step kernel (zoh=None): the same inputs
     to 1e-9 (measured ~2e-14) over 2 s from two ICs, inner region and ring both visited."""

@@ -12,7 +12,9 @@ Fréchet derivative: the same numbers to rounding.  Inputs outside |u| ≤ ρ ar
 """
 from __future__ import annotations
 
+import hashlib
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +22,8 @@ import scipy.linalg as sla
 
 MAX_DEGREE = 40
 TAIL = 2.0 ** -54
+_MEMO: OrderedDict = OrderedDict()   # the last few models' polynomials: a sweep worker runs many jobs on one model
+MEMO_SIZE = 8
 
 
 @dataclass(frozen=True)
@@ -54,9 +58,25 @@ def zoh_degree(norm_x: float, norm_y: float, max_degree: int = MAX_DEGREE) -> in
 def zoh_polynomial(lam, B, b, dt: float, rho: float) -> ZohPolynomial | None:
     """The polynomial of the exact ZOH map on |u| ≤ rho for a one-input model (Λ (k, k), B (1, k, k), b (1, k));
     None when the model has more inputs or the degree would exceed :data:`MAX_DEGREE` (use the exponential)."""
-    lam, B, b = (np.asarray(a, dtype=float) for a in (lam, B, b))
+    lam, B, b = (np.ascontiguousarray(a, dtype=float) for a in (lam, B, b))
     if B.shape[0] != 1 or not (np.isfinite(rho) and rho > 0):
         return None
+    h = hashlib.sha256()
+    for a in (lam, B, b, np.array([dt, rho], float)):
+        h.update(repr(a.shape).encode())
+        h.update(a.tobytes())
+    key = h.hexdigest()
+    if key in _MEMO:     # the same inputs to the bit: the same coefficients (0.1–0.3 s saved per sweep job)
+        _MEMO.move_to_end(key)
+        return _MEMO[key]
+    out = _coefficients(lam, B, b, dt, rho)
+    _MEMO[key] = out
+    while len(_MEMO) > MEMO_SIZE:
+        _MEMO.popitem(last=False)
+    return out
+
+
+def _coefficients(lam, B, b, dt, rho):
     k = lam.shape[0]
     n = k + 1
     X = np.zeros((n, n))
