@@ -9,7 +9,8 @@ from kexp.app.main import CONF_DIR, run
 pytest.importorskip("casadi")
 
 # from np.random.default_rng(3).uniform(-2, 2, (2, 30)).T, the sample: ICs 0, 15, 20, 21 (measured
-# LMPC/oracle 1.039, 1.034, 1.059, 1.022; LQR/oracle 1.091, 1.141, 1.139, 1.226)
+# LMPC/oracle 1.0003, 0.9999, 1.0002, 1.0009 with the preset's 20-step horizon, 1.039, 1.034, 1.059, 1.022 with
+# 100 steps; LQR/oracle 1.091, 1.141, 1.139, 1.226)
 X0 = np.random.default_rng(3).uniform(-2, 2, (2, 30)).T[[0, 15, 20, 21]]
 
 
@@ -32,5 +33,5 @@ def test_lmpc_meets_the_oracle_far_out_and_beats_lqr(tmp_path):
     lqr = _costs(tmp_path, ["controller=lqr"])
     ratio, lqr_ratio = lmpc / oracle, lqr / oracle
     assert np.all(ratio <= 1.15), ratio                     # the worst-case bound
-    assert np.median(ratio) <= 1.06, ratio                  # measured 1.036; the median target is 1.03
+    assert np.median(ratio) <= 1.03, ratio                  # the median target; measured 1.0003
     assert np.median(ratio) < np.median(lqr_ratio), (ratio, lqr_ratio)   # measured 1.036 vs 1.140
