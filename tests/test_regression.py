@@ -56,7 +56,7 @@ def test_input_monomials_order():
 def _in_simulator() -> bool:
     f = sys._getframe(1)
     while f is not None:
-        if f.f_globals.get("__name__") == "kexp.data.integrate":
+        if f.f_globals.get("__name__") in ("kexp.data.integrate", "kexp.simulate.stepper"):
             return True
         f = f.f_back
     return False
@@ -64,7 +64,8 @@ def _in_simulator() -> bool:
 
 @dataclass(frozen=True)
 class GuardedVanDerPol(VanDerPol):
-    """Van der Pol whose input matrix G may be evaluated only by the simulator (kexp.data.integrate)."""
+    """Van der Pol whose input matrix G may be evaluated only by the simulator (kexp.data.integrate and the closed
+    loop's kexp.simulate.stepper)."""
     name: ClassVar[str] = "guarded_vanderpol"
 
     def input_matrix(self, x):

@@ -48,3 +48,27 @@ def test_blow_up_raises():
     stepper = HeldInputStepper(Square(A=((0.0, 0.0), (0.0, 0.0))), IntegratorOptions(batch=1))
     with pytest.raises(IntegrationFailure, match=r"\[0, 2\]"):
         stepper.step(np.array([1.0, 1.0]), np.zeros(1), 0.0, 2.0)
+
+
+def test_the_systems_own_exception_comes_through_at_once():
+    """An error in the user's drift or input matrix is raised unchanged by step() (as solve_ivp would), and the
+    integrator stops at its next accepted step instead of running on: here within one step's 12 stages of the
+    failing call (without the guard scipy reported "must not return a tuple" after ~35 s of rejected steps)."""
+    calls = []
+
+    class Flaky(VanDerPol):
+        def input_matrix(self, x):
+            calls.append(1)
+            if len(calls) == 3:
+                raise ZeroDivisionError("the rig's model failed")
+            return super().input_matrix(x)
+
+    stepper = HeldInputStepper(Flaky(), IntegratorOptions(batch=1))
+    with pytest.raises(ZeroDivisionError, match="rig's model failed"):
+        stepper.step(np.array([0.5, 0.1]), np.array([0.2]), 0.0, 0.01)
+    assert len(calls) == 3        # after the failure the system is not called again
+    calls.clear()                 # and the stepper is usable afterwards: the same state as a fresh one
+    ref = HeldInputStepper(VanDerPol(), IntegratorOptions(batch=1)).step(np.array([0.5, 0.1]), np.array([0.2]), 0.0,
+                                                                       0.01)
+    calls.extend([1] * 10)
+    assert np.array_equal(stepper.step(np.array([0.5, 0.1]), np.array([0.2]), 0.0, 0.01), ref)

@@ -33,9 +33,22 @@ class HeldInputStepper:
         if name is not None:
             from scipy.integrate import ode
             self._ode = ode(self._rhs).set_integrator(name, rtol=options.rtol, atol=options.atol, nsteps=MAX_STEPS)
+            self._ode.set_solout(self._solout)
+        self._error: BaseException | None = None
 
     def _rhs(self, _t, y):
-        return self.system.rhs(y[None], self._u)[0]
+        # an exception cannot cross the Fortran integrator (scipy reports something else, after up to MAX_STEPS
+        # steps): keep it, return a harmless derivative, stop at the next accepted step (_solout) and re-raise it
+        if self._error is not None:
+            return np.zeros_like(y)
+        try:
+            return self.system.rhs(y[None], self._u)[0]
+        except BaseException as exc:  # noqa: BLE001 - re-raised by step(), unchanged
+            self._error = exc
+            return np.zeros_like(y)
+
+    def _solout(self, _t, _y):
+        return -1 if self._error is not None else 0
 
     def step(self, x: np.ndarray, u: np.ndarray, t0: float, t1: float) -> np.ndarray:
         """The state at t1 (n,); raises :class:`~kexp.data.integrate.IntegrationFailure` if the integration
@@ -51,6 +64,7 @@ class HeldInputStepper:
             return integrate(self.system, x[None], np.array([t0, t1]), np.asarray(u, float)[None, None],
                              self.options)[0, 1]
         self._u = np.asarray(u, float).reshape(1, -1)
+        self._error = None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # dop853 warns before it gives up; the failure is raised below
             try:
@@ -58,6 +72,9 @@ class HeldInputStepper:
                 y = self._ode.integrate(t1)
             except (ValueError, FloatingPointError, OverflowError) as exc:
                 raise IntegrationFailure(f"integration failed on [{t0:.4g}, {t1:.4g}]: {exc}") from None
+        if self._error is not None:   # the system's own code raised: its exception, as solve_ivp would give it
+            error, self._error = self._error, None
+            raise error
         if not self._ode.successful() or not np.all(np.isfinite(y)):
             code = self._ode.get_return_code()
             raise IntegrationFailure(f"integration failed on [{t0:.4g}, {t1:.4g}]: "
