@@ -127,7 +127,7 @@ def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, v
                 pad = 0.05 * (np.ptp(x[:, i]) + 1e-9)
                 setter(x[:, i].min() - pad, x[:, i].max() + pad)
         if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7, loc="lower right")
+            ax.legend(fontsize=7, loc="best", framealpha=0.6)
     if sc is not None:
         bar = fig.colorbar(sc, ax=axes[0].tolist(), shrink=0.85)
         bar.set_label(f"J / J_oracle (clipped to [1, {vmax:g}])")
