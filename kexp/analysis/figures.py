@@ -22,14 +22,7 @@ import numpy as np
 
 from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, read_log
-from .roa import roa_figure  # noqa: F401  (kexp-figures roa; re-exported)
-
-
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
+from .roa import _plt, roa_figure  # noqa: F401  (roa_figure: kexp-figures roa; re-exported)
 
 
 def _arr(msgs, key):

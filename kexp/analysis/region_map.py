@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import KexpError
+from .roa import _plt
 
 VMAX = 1.3   # ratios above this share the top colour
 
@@ -136,10 +137,3 @@ def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, v
     fig.savefig(out, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return out, [f for *_, f in panels]
-
-
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
