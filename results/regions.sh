@@ -12,9 +12,8 @@
 # The table: kexp-results table results/regions/*.csv; the maps: kexp-figures roa ... --oracle ..._nmpc.csv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-X0=$(python -c "import numpy as np; ics=np.random.default_rng(42).uniform(-2,2,(2,100)).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))")
-JOBS=${KEXP_SWEEP_JOBS:-2}
-mkdir -p sweeps results/regions
+source results/sweep_lib.sh
+X0=$(x0_list -2 2)
 
 overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 head=${1%%_*} ctrl=${1#*_}
@@ -42,11 +41,6 @@ done
 if [ "${1:-}" = "--list" ]; then printf '%s\n' "${ROWS[@]}" "(and <system>-uN_<controller> for a bound N)"; exit 0; fi
 for row in "$@"; do
     mapfile -t ov < <(overrides "$row")
-    [ ${#ov[@]} -gt 0 ] || exit 2
-    rm -rf "sweeps/regions/$row"
-    echo "== $row: ${ov[*]}"
-    # no MCAP log and no Rerun recording per run: the table and the maps need only each run's summary.json
-    kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="$JOBS" logging.rrd=false logging.mcap=false "sim.x0=$X0" "${ov[@]}" \
-        hydra.sweep.dir="sweeps/regions/$row" > "sweeps/regions-$row.log" 2>&1 || true
-    kexp-results collect "sweeps/regions/$row" "$row" -o results/regions || echo "== $row: no results (see sweeps/regions-$row.log)"
+    [ ${#ov[@]} -gt 0 ] || exit 2     # overrides said why on stderr
+    sweep_row "$row" "sweeps/regions/$row" results/regions "$X0" "${ov[@]}"
 done

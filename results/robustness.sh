@@ -14,9 +14,8 @@
 # these names.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-X0=$(python -c "import numpy as np; ics=np.random.default_rng(42).uniform(-1,1,(2,100)).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))")
-JOBS=${KEXP_SWEEP_JOBS:-2}
-mkdir -p sweeps results/robustness
+source results/sweep_lib.sh
+X0=$(x0_list -1 1)
 
 overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 system=${1%%_*} rest=${1#*_}
@@ -60,12 +59,8 @@ done
 if [ "${1:-}" = "--list" ]; then printf '%s\n' "${ROWS[@]}"; exit 0; fi
 for row in "$@"; do
     mapfile -t ov < <(overrides "$row")
-    rm -rf "sweeps/$row"
-    echo "== $row: ${ov[*]}"
-    # no MCAP log and no Rerun recording per run: the table needs only each run's summary.json
-    kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="$JOBS" logging.rrd=false logging.mcap=false "sim.x0=$X0" "${ov[@]}" \
-        hydra.sweep.dir="sweeps/$row" > "sweeps/$row.log" 2>&1 || true
+    [ ${#ov[@]} -gt 0 ] || exit 2     # overrides said why on stderr
     dest=results/robustness
     [[ $row =~ ^[a-z_]+_(lmpc|lqr|nmpc)$ ]] && dest=results
-    kexp-results collect "sweeps/$row" "$row" -o "$dest" || echo "== $row: no results (see sweeps/$row.log)"
+    sweep_row "$row" "sweeps/$row" "$dest" "$X0" "${ov[@]}"
 done

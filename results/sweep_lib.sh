@@ -1,0 +1,22 @@
+# Shared by results/robustness.sh and results/regions.sh (sourced, not run): the initial conditions of a results
+# row and the sweep that condenses one row into a CSV.
+
+# x0_list LOW HIGH: the 100 initial conditions np.random.default_rng(42).uniform(LOW, HIGH, (2, 100)).T as one
+# Hydra list value
+x0_list() {
+    python -c "import numpy as np; ics=np.random.default_rng(42).uniform($1,$2,(2,100)).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))"
+}
+
+# sweep_row ROW SWEEP_DIR DEST X0 OVERRIDE...: a 100-IC multirun of kexp with the overrides into SWEEP_DIR (its
+# output in SWEEP_DIR.log), condensed into DEST/ROW.csv.  No MCAP log and no Rerun recording per run: the tables
+# and maps need only each run's summary.json.  $KEXP_SWEEP_JOBS workers (default 2).
+sweep_row() {
+    local row=$1 dir=$2 dest=$3 x0=$4
+    shift 4
+    rm -rf "$dir"
+    mkdir -p "$(dirname "$dir")" "$dest"
+    echo "== $row: $*"
+    kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="${KEXP_SWEEP_JOBS:-2}" logging.rrd=false \
+        logging.mcap=false "sim.x0=$x0" "$@" hydra.sweep.dir="$dir" > "$dir.log" 2>&1 || true
+    kexp-results collect "$dir" "$row" -o "$dest" || echo "== $row: no results (see $dir.log)"
+}
