@@ -88,3 +88,36 @@ def test_readme_shows_the_committed_robustness_table():
         pytest.skip("no committed robustness table yet")
     readme = (RESULTS.parent / "README.md").read_text()
     assert committed.read_text().strip() in readme
+
+
+@pytest.mark.parametrize("script, row, dest, lo", [("robustness.sh", "vanderpol_lmpc-reg-noise1", "results/robustness", -1),
+                                                   ("regions.sh", "pendulum-u1_nmpc", "results/regions", -2)])
+def test_row_scripts_run_one_sweep_per_row_and_refuse_bad_names(tmp_path, script, row, dest, lo):
+    """results/robustness.sh and regions.sh (through results/sweep_lib.sh), with kexp and kexp-results replaced by
+    stubs that record their arguments: one 100-IC multirun per row from default_rng(42) over [lo, -lo]², then
+    one collect into the row's folder; a row name they cannot parse stops with exit code 2 before any sweep."""
+    import os
+    import shutil
+    import subprocess
+    root = tmp_path / "repo"
+    shutil.copytree(RESULTS, root / "results", ignore=shutil.ignore_patterns("*.csv", "*.md"))
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for name in ("kexp", "kexp-results"):
+        (bin_dir / name).write_text(f'#!/bin/sh\nprintf "%s\\n" {name} "$@" >> "{tmp_path}/calls"\n')
+        (bin_dir / name).chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    proc = subprocess.run(["bash", str(root / "results" / script), row], env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    calls = (tmp_path / "calls").read_text().split("kexp")
+    kexp_args = next(c for c in calls if "--multirun" in c).split("\n")
+    x0 = next(a for a in kexp_args if a.startswith("sim.x0="))[len("sim.x0="):]
+    ics = np.array(eval(f"[{x0}]"))
+    assert np.array_equal(ics, np.random.default_rng(42).uniform(lo, -lo, (2, 100)).T)
+    assert any(a.startswith("hydra.sweep.dir=sweeps/") and a.endswith(row) for a in kexp_args)
+    collect = next(c for c in calls if c.startswith("-results\ncollect")).split("\n")
+    assert collect[3:6] == [row, "-o", dest]
+    (tmp_path / "calls").unlink()
+    bad = subprocess.run(["bash", str(root / "results" / script), "vanderpol_foo"], env=env, capture_output=True,
+                         text=True)
+    assert bad.returncode == 2 and "unknown controller" in bad.stderr and not (tmp_path / "calls").exists()
