@@ -5,6 +5,8 @@
 #
 #   results/regions.sh ROW [ROW ...]     # e.g. vanderpol_lmpc pendulum-u1_nmpc
 #   results/regions.sh --list            # every row this script knows
+#   results/regions.sh --map ROW [...]    # the region maps' 400 x0: 300 more from default_rng(43) over [-2, 2]²,
+#                                         # into results/regions/map/ROW.csv with the row's 100 (run those first)
 #
 # Row names: <system>[-uN]_<controller>: the working preset +experiment=<system>; -uN: the input bound |u| ≤ N
 # (controller.u_min=-N, controller.u_max=N) for every controller of the row, oracle included; controller lmpc
@@ -39,8 +41,22 @@ for s in vanderpol pendulum; do
 done
 
 if [ "${1:-}" = "--list" ]; then printf '%s\n' "${ROWS[@]}" "(and <system>-uN_<controller> for a bound N)"; exit 0; fi
+MAP=0
+if [ "${1:-}" = "--map" ]; then MAP=1; shift; X0=$(x0_list -2 2 43 300); fi
 for row in "$@"; do
     mapfile -t ov < <(overrides "$row")
     [ ${#ov[@]} -gt 0 ] || exit 2     # overrides said why on stderr
-    sweep_row "$row" "sweeps/regions/$row" results/regions "$X0" "${ov[@]}"
+    if [ $MAP = 0 ]; then
+        sweep_row "$row" "sweeps/regions/$row" results/regions "$X0" "${ov[@]}"
+        continue
+    fi
+    [ -f "results/regions/$row.csv" ] || { echo "no results/regions/$row.csv: run results/regions.sh $row first" >&2; exit 2; }
+    sweep_row "$row" "sweeps/regions/map/$row" results/regions/map/300 "$X0" "${ov[@]}"
+    more=results/regions/map/300/$row.csv
+    [ -f "$more" ] || continue
+    if [ "$(head -n1 "$more")" != "$(head -n1 "results/regions/$row.csv")" ]; then
+        echo "$more and results/regions/$row.csv have different columns: not merged" >&2; exit 2
+    fi
+    { cat "results/regions/$row.csv"; tail -n +2 "$more"; } > "results/regions/map/$row.csv"
+    echo "== $row: $(($(wc -l < "results/regions/map/$row.csv") - 1)) x0 in results/regions/map/$row.csv"
 done

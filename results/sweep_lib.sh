@@ -1,13 +1,13 @@
 # Shared by results/robustness.sh and results/regions.sh (sourced, not run): the initial conditions of a results
 # row and the sweep that condenses one row into a CSV.
 
-# x0_list LOW HIGH: the 100 initial conditions np.random.default_rng(42).uniform(LOW, HIGH, (2, 100)).T as one
-# Hydra list value
+# x0_list LOW HIGH [SEED N]: the N initial conditions np.random.default_rng(SEED).uniform(LOW, HIGH, (2, N)).T
+# (SEED 42, N 100 unless given) as one Hydra list value
 x0_list() {
-    python -c "import numpy as np; ics=np.random.default_rng(42).uniform($1,$2,(2,100)).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))"
+    python -c "import numpy as np; ics=np.random.default_rng(${3:-42}).uniform($1,$2,(2,${4:-100})).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))"
 }
 
-# sweep_row ROW SWEEP_DIR DEST X0 OVERRIDE...: a 100-IC multirun of kexp with the overrides into SWEEP_DIR (its
+# sweep_row ROW SWEEP_DIR DEST X0 OVERRIDE...: a multirun over the x0 of X0 of kexp with the overrides into SWEEP_DIR (its
 # output in SWEEP_DIR.log), condensed into DEST/ROW.csv.  No MCAP log and no Rerun recording per run: the tables
 # and maps need only each run's summary.json.  $KEXP_SWEEP_JOBS workers (default 2).
 sweep_row() {
