@@ -57,6 +57,8 @@ def test_the_systems_own_exception_comes_through_at_once():
     calls = []
 
     class Flaky(VanDerPol):
+        constant_input_matrix = False      # G is evaluated in every right-hand-side call (where it fails)
+
         def input_matrix(self, x):
             calls.append(1)
             if len(calls) == 3:
@@ -72,3 +74,38 @@ def test_the_systems_own_exception_comes_through_at_once():
                                                                        0.01)
     calls.extend([1] * 10)
     assert np.array_equal(stepper.step(np.array([0.5, 0.1]), np.array([0.2]), 0.0, 0.01), ref)
+
+
+@pytest.mark.parametrize("system", [VanDerPol(), Pendulum(), Linear(A=((0.0, 1.0), (-2.0, -0.3)),
+                                                                    B=((0.0, 1.0), (1.0, 0.5)))],
+                         ids=["vanderpol", "pendulum", "linear_m2"])
+def test_constant_input_matrix_gives_the_same_bits(system):
+    """With constant_input_matrix the stepper forms G·u once per step; its steps equal, bit for bit, those of the
+    general path that evaluates rhs(x, u) in every call (the same subclass with the declaration switched off)."""
+    general = type("General", (type(system),), {"constant_input_matrix": False})
+    kw = {} if not isinstance(system, Linear) else {"A": system.A, "B": system.B}
+    fast = HeldInputStepper(system, IntegratorOptions(batch=1))
+    slow = HeldInputStepper(general(**kw), IntegratorOptions(batch=1))
+    assert system.constant_input_matrix and fast._gu is None
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        x, u = rng.uniform(-2, 2, 2), rng.uniform(-5, 5, system.m)
+        assert np.array_equal(fast.step(x, u, 0.0, 0.01), slow.step(x, u, 0.0, 0.01))
+    assert fast._gu is not None and slow._gu is None
+
+
+def test_a_false_constant_declaration_is_refused():
+    """check_system evaluates G on probe states: a system that declares constant_input_matrix but whose G varies
+    is refused with a message that says which flag to change."""
+    from kexp.errors import SystemDefinitionError
+    from kexp.systems.base import check_system
+
+    class Varying(VanDerPol):
+        def input_matrix(self, x):
+            g = super().input_matrix(x)
+            g[..., 1, 0] = 1.0 + np.asarray(x)[..., 0] ** 2
+            return g
+
+    with pytest.raises(SystemDefinitionError, match="constant_input_matrix = False"):
+        check_system(Varying())
+    check_system(type("Honest", (Varying,), {"constant_input_matrix": False})())

@@ -16,6 +16,15 @@ def _const_input(x: np.ndarray, g: np.ndarray) -> np.ndarray:
     return np.broadcast_to(g, x.shape[:-1] + g.shape).copy()
 
 
+def _pair(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """(..., 2) from two (...) arrays: np.stack's result in a third of its time (the integrator calls drift(x)
+    about 14 times per control step)."""
+    out = np.empty(np.shape(first) + (2,))
+    out[..., 0] = first
+    out[..., 1] = second
+    return out
+
+
 @dataclass(frozen=True)
 class VanDerPol(ControlAffineSystem):
     """Paper eq. (Van):  ẋ1 = x2,  ẋ2 = μ(1 − x1²)x2 − x1 + u.  Unstable focus at 0, limit cycle around it."""
@@ -24,11 +33,12 @@ class VanDerPol(ControlAffineSystem):
     name: ClassVar[str] = "vanderpol"
     n: ClassVar[int] = 2
     m: ClassVar[int] = 1
+    constant_input_matrix: ClassVar[bool] = True
 
     def drift(self, x):
         x = np.asarray(x, dtype=float)
         x1, x2 = x[..., 0], x[..., 1]
-        return np.stack([x2, self.mu * (1.0 - x1**2) * x2 - x1], axis=-1)
+        return _pair(x2, self.mu * (1.0 - x1**2) * x2 - x1)
 
     def input_matrix(self, x):
         return _const_input(x, np.array([[0.0], [1.0]]))
@@ -43,11 +53,12 @@ class Pendulum(ControlAffineSystem):
     name: ClassVar[str] = "pendulum"
     n: ClassVar[int] = 2
     m: ClassVar[int] = 1
+    constant_input_matrix: ClassVar[bool] = True
 
     def drift(self, x):
         x = np.asarray(x, dtype=float)
         x1, x2 = x[..., 0], x[..., 1]
-        return np.stack([x2, self.c * x2 - np.sin(x1)], axis=-1)
+        return _pair(x2, self.c * x2 - np.sin(x1))
 
     def input_matrix(self, x):
         return _const_input(x, np.array([[0.0], [1.0]]))
@@ -71,11 +82,12 @@ class Duffing(ControlAffineSystem):
     name: ClassVar[str] = "duffing"
     n: ClassVar[int] = 2
     m: ClassVar[int] = 1
+    constant_input_matrix: ClassVar[bool] = True
 
     def drift(self, x):
         x = np.asarray(x, dtype=float)
         x1, x2 = x[..., 0], x[..., 1]
-        return np.stack([x2, -self.delta * x2 + self.alpha * x1 - self.beta * x1**3], axis=-1)
+        return _pair(x2, -self.delta * x2 + self.alpha * x1 - self.beta * x1**3)
 
     def input_matrix(self, x):
         return _const_input(x, np.array([[0.0], [1.0]]))
@@ -88,6 +100,7 @@ class Linear(ControlAffineSystem):
     A: tuple = ((0.0, 1.0), (-2.0, -0.3))
     B: tuple = ((0.0,), (1.0,))
     name: ClassVar[str] = "linear"
+    constant_input_matrix: ClassVar[bool] = True
 
     def __post_init__(self):
         a = np.asarray(self.A, dtype=float)
@@ -130,6 +143,7 @@ class SlowManifold(ControlAffineSystem):
     inputs: str = "x2"
     name: ClassVar[str] = "slow_manifold"
     n: ClassVar[int] = 2
+    constant_input_matrix: ClassVar[bool] = True
 
     def __post_init__(self):
         if self.inputs not in ("x2", "both"):
@@ -144,7 +158,7 @@ class SlowManifold(ControlAffineSystem):
     def drift(self, x):
         x = np.asarray(x, dtype=float)
         x1, x2 = x[..., 0], x[..., 1]
-        return np.stack([self.mu * x1, self.lam * (x2 - x1**2)], axis=-1)
+        return _pair(self.mu * x1, self.lam * (x2 - x1**2))
 
     def input_matrix(self, x):
         g = np.array([[0.0], [1.0]]) if self.inputs == "x2" else np.eye(2)
