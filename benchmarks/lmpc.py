@@ -165,12 +165,12 @@ def step_flops(ctrl, qp_iterations: float, active: str) -> dict[str, float]:
                                    far: 2·k²·(b+1)
       condensing                   H = 2Δw·F Fᵀ with F (nu, Np·k): 2·nu²·Np·k; g and the affine part:
                                    4·nu·Np·k; (21e) rows: 2·Np·k·(k + nu)
-      QP (dense PIQP, per iter.)   the reduced KKT matrix H + ρI + Gᵀ W G (p = Np+1 rows): p·n_x², its
+      QP (dense PIQP, per iter.)   the reduced KKT matrix H + ρI + Gᵀ W G (p = Np rows for (21e), else 1): p·n_x², its
                                    Cholesky n_x³/3, two triangular solves 4·n_x², products with G and Gᵀ 4·p·n_x
     """
     k, n, D = ctrl.k, ctrl.k + 1, ctrl.zoh.degree
     Np, nu, nb = ctrl.cfg.horizon, ctrl.nu, ctrl.nb
-    nx, p = nu + 1, Np + 1
+    nx, p = nu + 1, (Np if active == "21e" else 1)
     parts = {
         "map + derivative per block": nb * (2 * D * n * n + 2 * (D - 1) * n * n + n * n),
         "per-step propagation": sum(4 * k * n + 2 * k * k * (int(b) + 1) for b in ctrl.bos),
@@ -265,20 +265,23 @@ def breakdown(ctrls, z0, warm, reps: int):
                         acc[key] += time.perf_counter() - t
                 return wrapper
 
-            qp = ctrl.qp
-            orig_solve = qp.solve
+            for qp_name in ("qp", "qp_e", "qp_f"):             # the baseline's one QP, or today's two
+                qp = getattr(ctrl, qp_name, None)
+                if qp is None:
+                    continue
+                orig_solve = qp.solve
 
-            def solve(*a, acc=acc, orig_solve=orig_solve, **kw):
-                t = time.perf_counter()
-                try:
-                    res = orig_solve(*a, **kw)
-                finally:
-                    acc["qp"] += time.perf_counter() - t
-                acc["piqp"] += res.solve_time
-                return res
+                def solve(*a, acc=acc, orig_solve=orig_solve, **kw):
+                    t = time.perf_counter()
+                    try:
+                        res = orig_solve(*a, **kw)
+                    finally:
+                        acc["qp"] += time.perf_counter() - t
+                    acc["piqp"] += res.solve_time
+                    return res
 
-            qp.solve = solve
-            undo.callback(delattr, qp, "solve")
+                qp.solve = solve
+                undo.callback(delattr, qp, "solve")
             if hasattr(type(ctrl), "_sensitivity"):           # today's: the rollout and sensitivities
                 ctrl._sensitivity = timed(ctrl._sensitivity, "rs")
                 undo.callback(delattr, ctrl, "_sensitivity")

@@ -87,6 +87,31 @@ def test_laws_are_finite_and_within_bounds(vdp, law):
     assert u[500, 0] == 0.0  # h(0) = 0
 
 
+@pytest.mark.parametrize("law", ["sontag", "lie_gain", "model_lqr"])
+def test_single_state_path_equals_the_batched_law(vdp, law):
+    """The control step's path: lyap.at(z) gives value()'s V bit for bit and lie()'s L_ΛV, L_BV to rounding;
+    law.single(z, a, β) gives law(z[None])[0] to rounding, also for z = 0, NaN and huge z (finite, in bounds)."""
+    model, clf = vdp
+    h = make_law(law, clf.lyap, -5.0, 3.0, model=model)
+    rng = np.random.default_rng(3)
+    z = np.concatenate([rng.normal(size=(300, model.k)) * 10.0 ** rng.uniform(-12, 3, (300, 1)),
+                        np.zeros((1, model.k)), np.full((1, model.k), np.nan), np.full((1, model.k), 1e200)])
+    worst = 0.0
+    with np.errstate(all="ignore"):
+        for zi in z:
+            V, a, beta = clf.lyap.at(zi)
+            a_ref, beta_ref = clf.lyap.lie(zi[None])
+            u, u_ref = h.single(zi, a, beta), h(zi[None])[0]
+            assert u.shape == (1,) and np.isfinite(u).all() and -5.0 <= u[0] <= 3.0
+            if np.isfinite(zi).all() and np.abs(zi).max() < 1e100:
+                assert V == clf.lyap.value(zi)
+                scale = max(1.0, float(zi @ zi) * np.abs(clf.lyap.Q_b).max())
+                assert abs(a - a_ref[0]) <= 1e-12 * max(1.0, float(zi @ zi) * np.abs(clf.lyap.Q_lam).max())
+                assert np.all(np.abs(beta - beta_ref[0]) <= 1e-12 * scale)
+                worst = max(worst, float(np.abs(u - u_ref).max()))
+    assert worst <= 1e-12
+
+
 def test_lie_gain_is_minus_k_lbv(vdp):
     model, clf = vdp
     h = make_law("lie_gain", clf.lyap, -100, 100, k=0.5)

@@ -1,6 +1,7 @@
 """Explicit stabilising laws h(z) on a quadratic Lyapunov function, vectorised over states.
 
-Every law maps z (..., k) to u (..., m), always finite and within [u_min, u_max] (componentwise clip).
+Every law maps z (..., k) to u (..., m), always finite and within [u_min, u_max] (componentwise clip);
+``law.single(z, a, beta)`` is the same for one state z (k,) given its L_ΛV and L_BV (the control step's path).
 - ``sontag``: Sontag's formula (paper eq. 19), multi-input form
   b(z) = −(a + √(a² + ‖β‖⁴)) / ‖β‖² · β  (0 where β = 0), with a = L_ΛV, β = L_BV; then saturated.
 - ``lie_gain``: h(z) = −k·L_BV(z), saturated (the paper's pendulum law; no decay guarantee).
@@ -59,6 +60,15 @@ class Sontag:
     def __call__(self, z: np.ndarray) -> np.ndarray:
         return np.clip(self.unsaturated(z), self.u_min, self.u_max)
 
+    def single(self, z: np.ndarray, a: float, beta: np.ndarray) -> np.ndarray:
+        """h at one state z (k,) given its L_ΛV = ``a`` and L_BV = ``beta`` (m,) (:meth:`QuadraticLyapunov.at`):
+        the same formula as ``law(z[None])[0]`` without the batch machinery (a control step calls it once)."""
+        nb2 = float(beta @ beta)
+        if not nb2 > self.eps * max(1.0, abs(a)):
+            return np.clip(np.zeros_like(beta), self.u_min, self.u_max)
+        u = (-(a + np.sqrt(a * a + nb2 * nb2)) / nb2) * beta
+        return np.clip(np.where(np.isfinite(u), u, 0.0), self.u_min, self.u_max)
+
 
 @dataclass(frozen=True, eq=False)
 class LieGain:
@@ -84,6 +94,10 @@ class LieGain:
         _, beta = self.lyap.lie(z)
         u = np.where(np.isfinite(beta), -self.k * beta, 0.0)
         return np.clip(u, self.u_min, self.u_max)
+
+    def single(self, z: np.ndarray, a: float, beta: np.ndarray) -> np.ndarray:
+        """h at one state z (k,) given its L_BV = ``beta`` (m,) (``a`` unused): ``law(z[None])[0]``, unbatched."""
+        return np.clip(np.where(np.isfinite(beta), -self.k * beta, 0.0), self.u_min, self.u_max)
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,6 +128,11 @@ class ModelLqrGain:
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         u = -(np.asarray(z, dtype=float) @ self.K.T)
+        return np.clip(np.where(np.isfinite(u), u, 0.0), self.u_min, self.u_max)
+
+    def single(self, z: np.ndarray, a: float, beta: np.ndarray) -> np.ndarray:
+        """h at one state z (k,) (``a``, ``beta`` unused): ``law(z[None])[0]``, unbatched."""
+        u = -(self.K @ np.asarray(z, dtype=float))
         return np.clip(np.where(np.isfinite(u), u, 0.0), self.u_min, self.u_max)
 
 

@@ -155,10 +155,12 @@ class LyapunovContext:
 
 
 def lyapunov_context(clf, law, config: LmpcConfig, z0: np.ndarray) -> LyapunovContext:
-    V0 = float(clf.lyap.value(z0))
+    """V, L_ΛV and L_BV at z0 once (:meth:`QuadraticLyapunov.at`), h(z0) from them when the law has ``single``
+    (kexp's laws), else by calling it on the batch z0[None] (any callable z (..., k) -> u (..., m))."""
+    V0, a0, beta0 = clf.lyap.at(z0)
     region = region_of(V0, clf.r, clf.r_hat)
-    h0 = law(z0[None])[0]
-    beta0 = clf.lyap.lie(z0[None])[1][0]
+    single = getattr(law, "single", None)
+    h0 = single(z0, a0, beta0) if single is not None else law(z0[None])[0]
     if region == "inner":
         active = "21e" if config.use_21e else "none"
     else:
@@ -186,7 +188,10 @@ class Lmpc:
         self.bos = block_of_step(self.sizes)
         self.nb = len(self.sizes)
         self.nu = self.nb * self.m
-        self.qp = DenseQp(self.nu + 1, config.horizon + 1, eps=config.qp_eps, max_iter=config.qp_max_iter)
+        # two QPs of fixed structure: Np rows of (21e) inside Ω_r̂, one row ((21f), or an inactive 0 ≤ 1) elsewhere;
+        # PIQP's work per iteration grows with the rows, and a 21f step needs only its one
+        self.qp_e = DenseQp(self.nu + 1, config.horizon, eps=config.qp_eps, max_iter=config.qp_max_iter)
+        self.qp_f = DenseQp(self.nu + 1, 1, eps=config.qp_eps, max_iter=config.qp_max_iter)
         self.lam = np.ascontiguousarray(model.Lambda)
         self.B = np.ascontiguousarray(model.B)
         self.b = np.ascontiguousarray(model.b)
@@ -253,18 +258,20 @@ class Lmpc:
         H[-1, : self.nu] = 0.0
         H[-1, -1] = 2 * cfg.slack_weight
         g[-1] = cfg.slack_weight
-        G = np.zeros((cfg.horizon + 1, self.nu + 1))
-        h_u = np.ones(cfg.horizon + 1)  # inactive rows: 0 ≤ 1
-        if active == "21e":
+        if active == "21e":                          # V(z_j) ≤ r̂ + s, linearised: Np rows
             zP = Z[1:] @ self.P
-            Vbar = np.einsum("jk,jk->j", zP, Z[1:])
-            rows = np.einsum("jk,ujk->ju", 2 * zP, Sj)  # (Np, nu)
-            G[: cfg.horizon, : self.nu] = rows
-            G[: cfg.horizon, -1] = -1.0
-            h_u[: cfg.horizon] = self.clf.r_hat - Vbar + rows @ ub
-        elif active == "21f":
-            G[-1, : self.m] = beta0                  # u_0 is the first block's input
-            h_u[-1] = rhs_21f
+            Vbar = np.sum(zP * Z[1:], axis=1)
+            rows = np.matmul(Sj.transpose(1, 0, 2), 2 * zP[:, :, None])[:, :, 0]   # (Np, nu): 2 z̄_jᵀP S_j
+            G = np.empty((cfg.horizon, self.nu + 1))
+            G[:, : self.nu] = rows
+            G[:, -1] = -1.0
+            h_u = self.clf.r_hat - Vbar + rows @ ub
+        else:                                        # one row: (21f) on u_0, or inactive (0 ≤ 1)
+            G = np.zeros((1, self.nu + 1))
+            h_u = np.ones(1)
+            if active == "21f":
+                G[0, : self.m] = beta0               # u_0 is the first block's input
+                h_u[0] = rhs_21f
         return Z, H, g, G, h_u, c, Sj
 
     # -- one sampling instant ---------------------------------------------------------------------------------
@@ -283,7 +290,7 @@ class Lmpc:
         it = 0
         for it in range(1, cfg.max_iter + 1):
             Z, H, g, G, h_u, lin_c, lin_S = self._qp_data(z0, Ubar, active, rhs_21f, beta0)
-            res = self.qp.solve(H, g, G, h_u, self.x_l, self.x_u)
+            res = (self.qp_e if active == "21e" else self.qp_f).solve(H, g, G, h_u, self.x_l, self.x_u)
             qp_iters += res.iterations
             if not res.success:
                 return self._fallback(h0, res.message or res.status, region, active, t0, res.status, it, qp_iters)
@@ -308,7 +315,7 @@ class Lmpc:
             # slack and binding as the QP saw them: the linearised prediction at the applied plan (an exact rollout
             # here cost 0.48 ms, a quarter of the step; the plan's exact prediction is logged when requested)
             zl = lin_c + (Ubar.reshape(-1) @ lin_S.reshape(self.nu, -1)).reshape(lin_c.shape)
-            vmax = float(np.max(np.einsum("jk,kl,jl->j", zl, self.P, zl)))
+            vmax = float(np.max(np.sum((zl @ self.P) * zl, axis=1)))
             slack = max(0.0, vmax - self.clf.r_hat)
             binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
         elif active == "21f":

@@ -208,8 +208,10 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
             u = np.zeros(system.m)
         us[k] = u
         w = sigma_w * rng_w.standard_normal(system.m) if sigma_w is not None else None
-        V = float(lyap.value(z)) if lyap is not None else float("nan")
-        Vdot = float(lyap.vdot(z, u)) if lyap is not None else float("nan")
+        V, Vdot = float("nan"), float("nan")
+        if lyap is not None:   # V as lyap.value gives it; V̇ = L_ΛV + L_BV·u at z, once (lyap.at)
+            V, a, beta = lyap.at(z)
+            Vdot = float(a + np.sum(beta * u))
         rec = StepRecord(k=k, t=float(t[k]), x=xs[k].copy(), z=z, u=u.copy(), V=V, Vdot=Vdot,
                          region=step.region, active=step.active, binds=step.binds, slack=step.slack,
                          status=step.status, qp_status=step.qp_status, iterations=step.iterations,
