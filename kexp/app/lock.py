@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import re
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from pathlib import Path
 
 LOCK_NAME = "requirements.lock"
@@ -37,7 +38,8 @@ def _normalise(name: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
-def _installed(name: str) -> str | None:
+@lru_cache(maxsize=None)   # a metadata lookup scans site-packages (~1 ms each, ~170 ms per run for the lock's pins);
+def _installed(name: str) -> str | None:   # the installed versions do not change while a process runs
     from importlib.metadata import PackageNotFoundError, version
     try:
         return version(name)

@@ -30,7 +30,7 @@ from .build import (build_clf, build_controller, build_controller_spec, build_da
                     check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
                     system_settings)
 from .cache import Cache, clf_key, model_key
-from .lock import lock_info
+from .lock import _installed, lock_info
 from .progress import Progress
 from .schema import register as _register_schema
 
@@ -38,14 +38,10 @@ _register_schema()  # 'kexp_schema' in Hydra's ConfigStore: conf/config.yaml ext
 
 
 def _versions() -> dict:
-    from importlib.metadata import PackageNotFoundError, version
-    out = {}
-    for pkg in ("kexp", "numpy", "scipy", "cvxpy", "clarabel", "piqp", "mcap", "rerun-sdk", "hydra-core", "numba"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            out[pkg] = None
-    return out
+    """The versions of kexp and the packages its numbers depend on (None: not installed); looked up once per
+    process (kexp.app.lock._installed)."""
+    return {pkg: _installed(pkg) for pkg in ("kexp", "numpy", "scipy", "cvxpy", "clarabel", "piqp", "mcap",
+                                             "rerun-sdk", "hydra-core", "numba")}
 
 
 def config_hash(cfg_dict: dict) -> str:
@@ -459,6 +455,8 @@ def main() -> None:
         print(f"kexp {__version__}")
         return
     _precheck(sys.argv[1:])
+    from .sweeper import install
+    install()   # a sweep's batch check composes one job per structure, not every job (kexp/app/sweeper.py)
     _hydra_main()
 
 
