@@ -121,3 +121,36 @@ def test_row_scripts_run_one_sweep_per_row_and_refuse_bad_names(tmp_path, script
     bad = subprocess.run(["bash", str(root / "results" / script), "vanderpol_foo"], env=env, capture_output=True,
                          text=True)
     assert bad.returncode == 2 and "unknown controller" in bad.stderr and not (tmp_path / "calls").exists()
+
+
+def test_region_map_rows_add_300_x0_and_merge_them_with_the_rows_100(tmp_path):
+    """results/regions.sh --map ROW (kexp and kexp-results stubbed): refuses (exit 2, no sweep) while the row's
+    100-x0 CSV is missing; else one multirun over default_rng(43).uniform(-2, 2, (2, 300)).T, collected into
+    results/regions/map/300/, and results/regions/map/ROW.csv = the row's 100 lines then the 300 (one header)."""
+    import os
+    import shutil
+    import subprocess
+    root = tmp_path / "repo"
+    shutil.copytree(RESULTS, root / "results", ignore=shutil.ignore_patterns("*.csv", "*.md"))
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for name in ("kexp", "kexp-results"):
+        (bin_dir / name).write_text(f'#!/bin/sh\nprintf "%s\\n" {name} "$@" >> "{tmp_path}/calls"\n')
+        (bin_dir / name).chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    script = ["bash", str(root / "results" / "regions.sh"), "--map", "vanderpol_lmpc"]
+    missing = subprocess.run(script, env=env, capture_output=True, text=True)
+    assert missing.returncode == 2 and "run results/regions.sh vanderpol_lmpc first" in missing.stderr
+    assert not (tmp_path / "calls").exists()
+    header = "x0_1,x0_2,status,success,cost\n"
+    (root / "results" / "regions" / "map" / "300").mkdir(parents=True)
+    (root / "results" / "regions" / "vanderpol_lmpc.csv").write_text(header + "0.1,0.2,completed,True,1.0\n")
+    (root / "results" / "regions" / "map" / "300" / "vanderpol_lmpc.csv").write_text(
+        header + "1.5,-1.5,completed,True,3.0\n-1.9,0.3,completed,False,9.0\n")
+    proc = subprocess.run(script, env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    kexp_args = next(c for c in (tmp_path / "calls").read_text().split("kexp") if "--multirun" in c).split("\n")
+    x0 = next(a for a in kexp_args if a.startswith("sim.x0="))[len("sim.x0="):]
+    assert np.array_equal(np.array(eval(f"[{x0}]")), np.random.default_rng(43).uniform(-2, 2, (2, 300)).T)
+    assert (root / "results" / "regions" / "map" / "vanderpol_lmpc.csv").read_text() == (
+        header + "0.1,0.2,completed,True,1.0\n1.5,-1.5,completed,True,3.0\n-1.9,0.3,completed,False,9.0\n")
