@@ -7,7 +7,8 @@ import scipy.linalg as sla
 from kexp.clf import ClfConfig, synthesize_clf
 from kexp.control import ExplicitController, Lmpc, LmpcConfig, make_law
 from kexp.control.blocking import block_of_step, block_sizes
-from kexp.control.kernels import expm_frechet, rollout, rollout_sensitivity, rollout_sensitivity_poly
+from kexp.control.kernels import (expm_frechet, rollout, rollout_sensitivity, rollout_sensitivity_blocks,
+                                  rollout_sensitivity_poly)
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import zoh_degree, zoh_polynomial
 from kexp.data import Circle, DataConfig, collect
@@ -116,8 +117,9 @@ def test_zoh_polynomial_is_computed_once_per_model_and_range(vdp):
 
 
 def test_lmpc_fast_path_closed_loop_equals_the_per_step_kernel(vdp):
-    """The RTI closed loop with the polynomial fast path and with the per-step kernel (zoh=None): the same inputs
-    to 1e-9 (measured ~2e-14) over 2 s from two ICs, inner region and ring both visited."""
+    """The RTI closed loop with the polynomial fast path and with the general per-block kernel (zoh=None,
+    rollout_sensitivity_blocks): the same inputs to 1e-9 over 2 s from two ICs, inner region and ring both
+    visited."""
     s, model, clf, h = vdp
     for x0 in ICS[:2]:
         runs = []
@@ -129,6 +131,30 @@ def test_lmpc_fast_path_closed_loop_equals_the_per_step_kernel(vdp):
         assert runs[0].status == runs[1].status == "completed"
         assert np.max(np.abs(runs[0].u - runs[1].u)) <= 1e-9
         assert abs(runs[0].metrics.cost - runs[1].metrics.cost) <= 1e-9 * runs[1].metrics.cost
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_per_block_frechet_kernel_equals_the_per_step_kernel(vdp, m):
+    """The general path (any m, any input size): map and derivatives once per move block by expm_frechet, then
+    matrix-vector products per step, equals the per-step kernel (a Van Loan series every step) to rounding, on the
+    Van der Pol model with its B (and, for m > 1, random extra B_i, b_i of the same size), blocked and unblocked,
+    inputs up to ±7."""
+    _, model, _, _ = vdp
+    rng = np.random.default_rng(5)
+    lam = np.ascontiguousarray(model.Lambda)
+    B = np.concatenate([model.B] + [rng.normal(size=model.B.shape) * np.abs(model.B).max() for _ in range(m - 1)])
+    b = np.concatenate([model.b] + [rng.normal(size=model.b.shape) * np.abs(model.b).max() for _ in range(m - 1)])
+    B, b = np.ascontiguousarray(B), np.ascontiguousarray(b)
+    for bos in (block_of_step(block_sizes(100, 5, 20)), block_of_step(block_sizes(30, None, None))):
+        nb = int(bos.max()) + 1
+        for _ in range(4):
+            U = rng.uniform(-7, 7, (nb, m))
+            z0 = model.lift(rng.uniform(-2, 2, 2))
+            Z, Sb = rollout_sensitivity_blocks(lam, B, b, model.dt, z0, U, bos)
+            Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)
+            assert Sb.shape == (nb * m, len(bos) + 1, model.k)
+            assert np.max(np.abs(Z - Z0)) <= 1e-12 * np.max(np.abs(Z0))
+            assert np.max(np.abs(Sb.transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
 
 
 def test_block_sizes():

@@ -8,11 +8,14 @@ respect to u_i is the corresponding block of expm([[M, E_i], [0, M]]Δ)·[0; z; 
 machine precision.  Hence the rollout and its Jacobian are exact to rounding: no discretisation error beyond
 the zero-order hold itself, which *is* the sample-and-hold of the closed loop.
 
-Two paths.  :func:`rollout_sensitivity` (any number of inputs): E = expm(M) once per move block and the
-derivative by a Van Loan vector series once per step.  :func:`rollout_sensitivity_poly` (one input, the LMPC's
-default when the input range allows it): E(u) and dE/du from the polynomial of :mod:`kexp.control.zoh_poly`
-once per move block, applied to each step of it (matrix-vector products); the two agree to rounding (≤ 4e-14,
-tests/test_lmpc.py).
+Three kernels, equal to rounding (tests/test_lmpc.py).  :func:`rollout_sensitivity` (any number of inputs, the
+reference): E = expm(M) once per move block and the derivative by a Van Loan vector series once per step.  The
+LMPC uses the other two, which form the map and its derivative once per move block (the input is constant
+within it) and apply them to each of its steps by matrix-vector products: :func:`rollout_sensitivity_poly` (one
+input, when the input range allows it) from the polynomial of :mod:`kexp.control.zoh_poly`;
+:func:`rollout_sensitivity_blocks` (any number of inputs, any range) from :func:`expm_frechet`, one Fréchet
+derivative per input.  The top-level kernels release the GIL (``nogil``): a run's log writer thread works while
+they run.
 """
 from __future__ import annotations
 
@@ -163,7 +166,7 @@ def _dexp_vec(M, Ei, v, w, y, tw, ty, nw, ny):
                 break
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)   # the run's log writer thread works meanwhile
 def rollout(lam, B, b, dt, z0, U, block_of_step):
     """Z (Np+1, k): exact rollout for block inputs U (nb, m) applied per step via block_of_step (Np,)."""
     k = lam.shape[0]
@@ -184,7 +187,7 @@ def rollout(lam, B, b, dt, z0, U, block_of_step):
     return Z
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)   # the run's log writer thread works meanwhile
 def rollout_sensitivity(lam, B, b, dt, z0, U, block_of_step):
     """Z (Np+1, k) and S (Np+1, k, nb·m) with S[j] = ∂z_j/∂vec(U) (U row-major: block, then input)."""
     k = lam.shape[0]
@@ -306,7 +309,7 @@ def _step_poly(E, L, zz, z_next, S, j, blk, k):
             S[c, j + 1, r] += acc
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)   # the run's log writer thread works meanwhile
 def rollout_sensitivity_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
     """Z (Np+1, k) and Sb (nb, Np+1, k) with Sb[c, j] = ∂z_j/∂U_c, for a one-input model whose exact ZOH map is
     the polynomial ``coef`` (:class:`kexp.control.zoh_poly.ZohPolynomial`, in u/ρ on |u| ≤ ρ): Sb is
@@ -343,4 +346,71 @@ def rollout_sensitivity_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
         zz[:k] = Z[j]
         zz[k] = 1.0
         _step_poly(E, L, zz, Z[j + 1], S, j, blk, k)
+    return Z, S
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _step_blocks(E, L, zz, z_next, S, j, blk, k, m):
+    """Step j → j+1 within block ``blk`` for m inputs (S[c, j] = ∂z_j/∂vec(U)_c, (k,), c = block·m + input):
+    z_next ← (E·zz)[:k]; S[blk·m + i, j+1] ← (L_i·zz)[:k]; S[c, j+1] += E[:k, :k]·S[c, j] for the columns of the
+    blocks ≤ blk."""
+    n = k + 1
+    for r in range(k):
+        acc = 0.0
+        for l in range(n):
+            acc += E[r, l] * zz[l]
+        z_next[r] = acc
+    for i in range(m):
+        c = blk * m + i
+        for r in range(k):
+            dacc = 0.0
+            for l in range(n):
+                dacc += L[i, r, l] * zz[l]
+            S[c, j + 1, r] = dacc
+    for c in range((blk + 1) * m):
+        for r in range(k):
+            acc = 0.0
+            for l in range(k):
+                acc += E[r, l] * S[c, j, l]
+            S[c, j + 1, r] += acc
+
+
+@njit(cache=True, nogil=True)   # the run's log writer thread works meanwhile
+def rollout_sensitivity_blocks(lam, B, b, dt, z0, U, block_of_step):
+    """Z (Np+1, k) and Sb (nb·m, Np+1, k), Sb[c, j] = ∂z_j/∂vec(U)_c: :func:`rollout_sensitivity` for any number
+    of inputs and any input size, in :func:`rollout_sensitivity_poly`'s layout and with its economy: the input is
+    constant within a move block, so the map E = expm(M) and its derivatives L_i = dE/du_i (the Fréchet
+    derivatives of expm at M along [[B_i, b_i], [0, 0]]Δ, :func:`expm_frechet`) are formed once per block and
+    applied to each of its steps by matrix-vector products (the per-step kernel sums a Van Loan series in every
+    step).  Equal to :func:`rollout_sensitivity` to rounding (tests/test_lmpc.py)."""
+    k = lam.shape[0]
+    m = B.shape[0]
+    n = k + 1
+    Np = block_of_step.shape[0]
+    nb = U.shape[0]
+    Z = np.empty((Np + 1, k))
+    S = np.zeros((nb * m, Np + 1, k))
+    Z[0] = z0
+    zz = np.empty(n)
+    E = np.zeros((n, n))
+    L = np.zeros((m, n, n))
+    Li = np.zeros((n, n))
+    D = np.zeros((m, n, n))
+    for i in range(m):
+        for r in range(k):
+            for c in range(k):
+                D[i, r, c] = B[i, r, c] * dt
+            D[i, r, k] = b[i, r] * dt
+    last = -1
+    for j in range(Np):
+        blk = block_of_step[j]
+        if blk != last:
+            M = _augmented(lam, B, b, U[blk], dt)
+            for i in range(m):
+                expm_frechet(M, D[i], E, Li)
+                L[i] = Li
+            last = blk
+        zz[:k] = Z[j]
+        zz[k] = 1.0
+        _step_blocks(E, L, zz, Z[j + 1], S, j, blk, k, m)
     return Z, S

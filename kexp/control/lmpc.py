@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
-from .kernels import rollout, rollout_sensitivity, rollout_sensitivity_poly
+from .kernels import rollout, rollout_sensitivity_blocks, rollout_sensitivity_poly
 from .qp import DenseQp
 from .zoh_poly import zoh_polynomial
 
@@ -230,8 +230,7 @@ class Lmpc:
         if self.zoh is not None:
             return rollout_sensitivity_poly(self.zoh.coef, self.zoh.rho, self.lam, self.B, self.b, self.model.dt,
                                             z0, Ubar, self.bos)
-        Z, S = rollout_sensitivity(self.lam, self.B, self.b, self.model.dt, z0, Ubar, self.bos)
-        return Z, np.ascontiguousarray(S.transpose(2, 0, 1))
+        return rollout_sensitivity_blocks(self.lam, self.B, self.b, self.model.dt, z0, Ubar, self.bos)
 
     def _qp_data(self, z0, Ubar, active, rhs_21f, beta0):
         """The condensed QP at the guess Ubar: z_j ≈ c_j + S_j·vec(U) with S_j from :meth:`_sensitivity`."""
