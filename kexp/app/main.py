@@ -185,7 +185,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     logger = None
     if log_cfg["mcap"]:
         logger = RunLogger(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
-                           prediction_every=log_cfg["prediction_every"])
+                           prediction_every=log_cfg["prediction_every"], background=True)
         logger.log_config(cfg_dict, chash)
         logger.log_model(model)
         omega_r = level_set_boundary(model, clf.lyap, clf.r)
@@ -206,6 +206,10 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         with threadpool_limits(limits=1):  # BLAS threads on tiny products cost 10-100× (design §2.11)
             result = closed_loop(plant, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
                                  on_step=on_step, noise_scale=rms)
+    except BaseException:
+        if logger is not None:
+            logger.abandon()   # the steps so far stay in run.mcap
+        raise
     finally:
         bar.close()
     phase("closed_loop_s")

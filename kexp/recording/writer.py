@@ -1,8 +1,17 @@
 """RunLogger: one MCAP file per run, written as the run goes, flushed every ``flush_every`` seconds of
-simulated time so a killed run keeps all but its last second."""
+simulated time so a killed run keeps all but its last second.
+
+With ``background=True`` the JSON encoding and the MCAP records are written by a writer thread, in the order the
+messages were given (the file is byte-identical to a synchronous one, a test): the control loop only queues each
+message.  The thread runs while the loop is in code that releases the GIL (the LMPC's compiled rollout kernels),
+so on a machine with a free core the log costs the loop almost nothing.  An error on the writer thread is raised
+by the next ``write`` or by ``close``, unchanged.
+"""
 from __future__ import annotations
 
 import json
+import queue
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -24,9 +33,11 @@ class RunLogger:
     steps (0: never).  Call the typed helpers (``log_config``, ``log_model``, ``log_clf``, ``log_step`` from
     ``closed_loop``'s ``on_step``, ``log_open_loop``, ``log_summary``, ``log_run_info``) or ``write``, then
     ``close()`` — or use it as a context manager (see the README's Python API).  Writing to an unknown topic
-    raises KeyError; a file that cannot be opened raises OSError."""
+    raises KeyError; a file that cannot be opened raises OSError.  ``background=True``: a writer thread encodes and
+    writes (see the module's docstring); a payload given to ``write`` must then not be changed afterwards."""
 
-    def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0):
+    def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
+                 background: bool = False):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._f = open(self.path, "wb")
@@ -42,14 +53,54 @@ class RunLogger:
         self.prediction_every = prediction_every
         self._next_flush = flush_every
         self._closed = False
+        self._queue: queue.SimpleQueue | None = None
+        self._error: BaseException | None = None
+        if background:
+            self._queue = queue.SimpleQueue()
+            self._thread = threading.Thread(target=self._drain, name=f"kexp-log:{self.path.name}", daemon=True)
+            self._thread.start()
 
     def write(self, topic: str, t: float, payload: dict) -> None:
         """Add one message (numpy values welcome: :func:`~kexp.recording.schema.encode` converts them)."""
+        channel = self._ch[topic]          # an unknown topic raises KeyError here, in the caller's thread
         ns = _ns(t)
-        data = encode(payload)
-        self._w.add_message(channel_id=self._ch[topic], log_time=ns, publish_time=ns, data=data,
-                            sequence=self._seq[topic])
+        seq = self._seq[topic]
         self._seq[topic] += 1
+        if self._queue is None:
+            self._add(channel, ns, payload, seq)
+            return
+        self._raise_pending()
+        self._queue.put((channel, ns, payload, seq))
+
+    def _add(self, channel: int, ns: int, payload: dict, seq: int) -> None:
+        self._w.add_message(channel_id=channel, log_time=ns, publish_time=ns, data=encode(payload), sequence=seq)
+
+    def _flush(self) -> None:
+        if self._queue is None:
+            self._w.flush()
+        else:
+            self._queue.put(None)
+
+    def _drain(self) -> None:
+        """The writer thread: messages and flushes (None) in order until the stop mark (False)."""
+        while True:
+            item = self._queue.get()
+            if item is False:
+                return
+            if self._error is not None:
+                continue               # keep draining so that close() is not blocked; the error is raised there
+            try:
+                if item is None:
+                    self._w.flush()
+                else:
+                    self._add(*item)
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread unchanged
+                self._error = exc
+
+    def _raise_pending(self) -> None:
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
 
     # -- typed helpers -----------------------------------------------------------------------------------------
     def log_config(self, config: dict, config_hash: str) -> None:
@@ -89,7 +140,7 @@ class RunLogger:
                                               "t_pred": rec.t + model.dt * np.arange(len(Z)),
                                               "x_pred": model.to_state(Z)})
         if rec.t + 1e-12 >= self._next_flush:
-            self._w.flush()
+            self._flush()
             self._next_flush += self.flush_every
 
     def log_open_loop(self, t: np.ndarray, x: np.ndarray) -> None:
@@ -108,10 +159,36 @@ class RunLogger:
         self.write("/run_info", t, {"versions": versions, "timing": timing, "lock": lock})
 
     def close(self) -> None:
-        if not self._closed:
+        """Write what is queued, finish the file (summary and index) and close it; raises the writer thread's
+        error, if any (the file is closed either way)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._stop_thread()
+            self._raise_pending()
             self._w.finish()
+        finally:
             self._f.close()
-            self._closed = True
+
+    def abandon(self) -> None:
+        """For a run that stopped with an exception: write what is queued and the open chunk, close the file
+        without its summary section (readable message by message, like a killed run's log); never raises."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._stop_thread()
+            self._w.flush()
+        except BaseException:  # noqa: BLE001 - the run's own exception is the one to report
+            pass
+        finally:
+            self._f.close()
+
+    def _stop_thread(self) -> None:
+        if self._queue is not None and self._thread.is_alive():
+            self._queue.put(False)
+            self._thread.join()
 
     def __enter__(self):
         return self

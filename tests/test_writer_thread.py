@@ -1,0 +1,79 @@
+"""RunLogger's writer thread (background=True): the same bytes as a synchronous log, errors raised in the
+caller's thread, and a run that stops with an exception keeps its steps."""
+import warnings
+
+import numpy as np
+import pytest
+
+from kexp.clf import ClfConfig, synthesize_clf
+from kexp.control import Lmpc, LmpcConfig, make_law
+from kexp.data import Circle, DataConfig, collect
+from kexp.dictionary import Monomials
+from kexp.identify import identify
+from kexp.recording import read_log
+from kexp.recording.writer import RunLogger
+from kexp.simulate import SimConfig, closed_loop
+from kexp.systems import VanDerPol
+
+
+@pytest.fixture(scope="module")
+def run():
+    """A short LMPC closed loop on Van der Pol (200 steps; degree-3 model), for logging twice."""
+    system = VanDerPol()
+    model = identify(system, collect(system, Circle(30, 2.5), DataConfig(T=3.0)), Monomials(2, 3))
+    clf = synthesize_clf(model, ClfConfig())
+    law = make_law("sontag", clf.lyap, -5.0, 5.0)
+    ctrl = Lmpc(model, clf, law, LmpcConfig(horizon=20, blocks=None), -5.0, 5.0, prediction_every=10)
+    steps = []
+    result = closed_loop(system, ctrl, np.array([0.4, -0.3]), SimConfig(T=2.0), model=model, lyap=clf.lyap,
+                         on_step=lambda rec, st: steps.append((rec, st)))
+    return model, clf, result, steps
+
+
+def _write(path, run, background):
+    model, clf, result, steps = run
+    with RunLogger(path, prediction_every=10, flush_every=0.5, background=background) as lg:
+        lg.log_config({"a": 1}, "h")
+        lg.log_model(model)
+        lg.log_clf(clf)
+        for rec, st in steps:
+            lg.log_step(rec, st, model)
+        lg.log_summary(float(result.t[-1]), result.status, "", {"cost": result.metrics.cost}, True)
+    return path.read_bytes()
+
+
+def test_background_log_is_byte_identical(tmp_path, run):
+    sync = _write(tmp_path / "sync.mcap", run, False)
+    threaded = _write(tmp_path / "thread.mcap", run, True)
+    assert len(sync) > 10_000 and threaded == sync
+
+
+def test_an_error_on_the_writer_thread_is_raised_in_the_callers_thread(tmp_path):
+    """A message MCAP cannot store (a negative time stamp) fails on the writer thread; the next write or close
+    raises that error, unchanged, and the file is closed."""
+    import struct
+    lg = RunLogger(tmp_path / "bad.mcap", background=True)
+    lg.write("/timing", -1.0, {"k": 0, "t": -1.0, "solve_time": 0.0})
+    with pytest.raises(struct.error):
+        for k in range(1, 1000):   # the thread reports it at the latest on close
+            lg.write("/timing", 0.01 * k, {"k": k, "t": 0.01 * k, "solve_time": 0.0})
+        lg.close()
+    lg.close()                      # closing again is a no-op
+    assert lg._f.closed
+    with pytest.raises(KeyError):   # an unknown topic fails at once, in the caller's thread
+        RunLogger(tmp_path / "b.mcap", background=True).write("/nope", 0.0, {})
+
+
+def test_abandon_keeps_every_queued_step(tmp_path, run):
+    """A run that raised: abandon() writes what was queued and the open chunk; the log reads back (truncated, no
+    summary section) with every step given before."""
+    model, clf, result, steps = run
+    lg = RunLogger(tmp_path / "cut.mcap", flush_every=100.0, background=True)
+    for rec, st in steps[:150]:
+        lg.log_step(rec, st, model)
+    lg.abandon()
+    lg.abandon()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        log = read_log(tmp_path / "cut.mcap")
+    assert [p["k"] for _, p in log.channels["/step"]] == list(range(150))
