@@ -35,3 +35,26 @@ def test_lmpc_meets_the_oracle_far_out_and_beats_lqr(tmp_path):
     assert np.all(ratio <= 1.15), ratio                     # the issue's worst-case bound
     assert np.median(ratio) <= 1.03, ratio                  # the issue's median target; measured 1.0003
     assert np.median(ratio) < np.median(lqr_ratio), (ratio, lqr_ratio)   # measured 1.036 vs 1.140
+
+
+def test_at_half_a_unit_of_input_no_law_leaves_van_der_pols_cycle():
+    """Why no input bound makes LQR fail on Van der Pol where a better controller succeeds (README, "Over the whole
+    data region"): with |u| ≤ 0.5 even the law that takes energy out fastest at every instant, u = −0.5·sign(x2)
+    (E = |x|²/2, Ė = μ(1 − x1²)x2² + x2·u), is caught on a cycle of amplitude ≈ 1.49 from r = 1 and r = 2 — over a
+    cycle the negative damping puts in more than 0.5|x2| takes out; with |u| ≤ 0.75 it is not (the orbit shrinks
+    into the set |x1| ≤ 0.75, x2 = 0 where this law stops).  So bounds separate controllers on Van der Pol by speed
+    (cost), not by success."""
+    from scipy.integrate import solve_ivp
+
+    def late_orbit(bound, r):
+        def f(_t, x):
+            return [x[1], (1 - x[0] ** 2) * x[1] - x[0] - bound * np.tanh(x[1] / 1e-3)]
+        sol = solve_ivp(f, [0, 60], [r, 0.0], rtol=1e-8, atol=1e-10, max_step=0.01)
+        late = sol.y[:, sol.t > 40]
+        return np.abs(late[0]).max(), late[1].min(), late[1].max()
+
+    for r in (1.0, 2.0):
+        amp, lo, hi = late_orbit(0.5, r)
+        assert 1.4 < amp < 1.6 and lo < -0.5 and hi > 0.5          # still cycling after 40 s
+    amp, lo, hi = late_orbit(0.75, 2.0)
+    assert amp < 0.75 and max(-lo, hi) < 0.2                       # energy taken out
