@@ -71,6 +71,10 @@ class Monomials:
         e = monomial_exponents(self.n, self.degree, include_constant=self.include_constant, weights=self.weights)
         e.setflags(write=False)
         object.__setattr__(self, "exponents", e)
+        # for _lift_one: the exponent rows as tuples, the highest power, the scale
+        object.__setattr__(self, "_rows", tuple(tuple(r) for r in e.tolist()))
+        object.__setattr__(self, "_dmax", int(e.max()) if e.size else 0)
+        object.__setattr__(self, "_scales", self.scale or (1.0,) * self.n)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -123,11 +127,32 @@ class Monomials:
     def lift(self, x: np.ndarray) -> np.ndarray:
         """φ(x): (M, n) -> (M, N)."""
         x = self._check_x(x)
+        if x.shape[0] == 1:
+            return self._lift_one(x[0])[None]
         p = self._powers(x / self._scale)
         out = np.ones((x.shape[0], self.size))
         for i in range(self.n):
             out *= p[i, self.exponents[:, i]].T
         return out
+
+    def _lift_one(self, x: np.ndarray) -> np.ndarray:
+        """φ at one state (the closed loop lifts one per step): the same multiplications as the batched path, in
+        the same order, on Python floats (IEEE doubles: bit-identical, a test), without its ~20 numpy calls."""
+        d = self._dmax
+        powers = []
+        for xi, si in zip(x.tolist(), self._scales):
+            xi = xi / si
+            pw = [1.0]
+            for _ in range(d):
+                pw.append(pw[-1] * xi)
+            powers.append(pw)
+        out = []
+        for row in self._rows:
+            v = 1.0
+            for pw, a in zip(powers, row):
+                v *= pw[a]
+            out.append(v)
+        return np.array(out)
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """∂φ/∂x: (M, n) -> (M, N, n)."""

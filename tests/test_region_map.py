@@ -87,3 +87,19 @@ def test_committed_regions_table_is_the_readmes():
         pytest.skip("no committed regions table yet")
     assert table(csvs).strip() == committed.read_text().strip()
     assert committed.read_text().strip() in (root / "README.md").read_text()
+
+
+def test_committed_region_map_table_is_the_readmes():
+    """results/regions_map.md is `kexp-results table results/regions/map/*.csv` (the maps' 400 x0 per row: the
+    row's 100 and default_rng(43)'s 300), and the README shows it."""
+    from pathlib import Path
+
+    from kexp.app.results import table
+    root = Path(__file__).resolve().parents[1]
+    csvs = sorted((root / "results" / "regions" / "map").glob("*.csv"))
+    committed = root / "results" / "regions_map.md"
+    if not csvs or not committed.is_file():
+        pytest.skip("no committed region-map table yet")
+    assert all(sum(1 for _ in open(c)) == 401 for c in csvs)      # 400 x0 and the header
+    assert table(csvs).strip() == committed.read_text().strip()
+    assert committed.read_text().strip() in (root / "README.md").read_text()
