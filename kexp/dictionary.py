@@ -71,10 +71,6 @@ class Monomials:
         e = monomial_exponents(self.n, self.degree, include_constant=self.include_constant, weights=self.weights)
         e.setflags(write=False)
         object.__setattr__(self, "exponents", e)
-        # for _lift_one: the exponent rows as tuples, the highest power, the scale
-        object.__setattr__(self, "_rows", tuple(tuple(r) for r in e.tolist()))
-        object.__setattr__(self, "_dmax", int(e.max()) if e.size else 0)
-        object.__setattr__(self, "_scales", self.scale or (1.0,) * self.n)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -138,16 +134,22 @@ class Monomials:
     def _lift_one(self, x: np.ndarray) -> np.ndarray:
         """φ at one state (the closed loop lifts one per step): the same multiplications as the batched path, in
         the same order, on Python floats (IEEE doubles: bit-identical, a test), without its ~20 numpy calls."""
-        d = self._dmax
+        tables = self.__dict__.get("_one_state")
+        if tables is None:   # once per instance (not in __post_init__: an unpickled instance skips it)
+            e = self.exponents
+            tables = (tuple(tuple(r) for r in e.tolist()), int(e.max()) if e.size else 0,
+                      self.scale or (1.0,) * self.n)
+            object.__setattr__(self, "_one_state", tables)
+        rows, d, scales = tables
         powers = []
-        for xi, si in zip(x.tolist(), self._scales):
+        for xi, si in zip(x.tolist(), scales):
             xi = xi / si
             pw = [1.0]
             for _ in range(d):
                 pw.append(pw[-1] * xi)
             powers.append(pw)
         out = []
-        for row in self._rows:
+        for row in rows:
             v = 1.0
             for pw, a in zip(powers, row):
                 v *= pw[a]
