@@ -2,13 +2,13 @@
 
 Runs the same closed loop without a log, with the per-step RunLogger (flush every simulated second), and with
 the LMPC's predicted horizon logged every 20 steps (the default) or 10 steps too (an extra exact rollout each
-time), and with the writer thread (``RunLogger(background=True)``, what ``kexp`` runs: the loop only queues each
-message, the thread encodes and writes while the loop is in the GIL-free rollout kernels), interleaved, and
-prints the median wall times and their ratio.  Wall-time ratios between runs carry the
+time), and with the writer thread (``RunLogger(background=True)``: the loop only queues each message, the thread
+encodes and writes while the loop is in the GIL-free rollout kernels; measured slower here, so kexp does not use
+it), interleaved, and prints the median wall times and their ratio.  Wall-time ratios between runs carry the
 machine's noise (a few % on a shared 2-core VM), so the cost of logging is also timed directly inside each
 run: the time spent in the logging callback and in close() (with the writer thread: the queueing and the wait
 for the thread's last messages), plus the exact rollouts the LMPC makes only to log its prediction
-(kexp.control.lmpc.rollout, wrapped here; in RTI mode nothing else calls it), as a share of the no-log run
+(kexp.control.lmpc's rollout and rollout_poly, wrapped here; in RTI mode nothing else calls them), as a share of the no-log run
 time.  The direct measure of the writer-thread mode does not see the thread's competition for the GIL; the
 wall-time column does.  One BLAS thread.
 
@@ -49,23 +49,24 @@ def main():
     sim = SimConfig(T=10.0)
     # mode -> (prediction_every, writer thread)
     every = {"no log": (0, False), "MCAP log": (0, False),
-             "MCAP log + predictions every 20 steps (the default's plans)": (20, False),
+             "MCAP log + predictions every 20 steps (the default, what kexp runs)": (20, False),
              "MCAP log + predictions every 10 steps": (10, False),
-             "MCAP log + predictions every 20 steps, writer thread (what kexp runs)": (20, True)}
+             "MCAP log + predictions every 20 steps, writer thread (RunLogger(background=True))": (20, True)}
     times = {mode: [] for mode in every}
     inside = {mode: [] for mode in times}     # seconds spent on logging inside the run
     spent = [0.0]
-    rollout = lmpc_module.rollout
+    def timed(fn):
+        def wrapper(*a):
+            t = time.perf_counter()
+            out = fn(*a)
+            spent[0] += time.perf_counter() - t
+            return out
+        return wrapper
 
-    def timed_rollout(*a):
-        t = time.perf_counter()
-        out = rollout(*a)
-        spent[0] += time.perf_counter() - t
-        return out
+    lmpc_module.rollout = timed(lmpc_module.rollout)
+    lmpc_module.rollout_poly = timed(lmpc_module.rollout_poly)
 
-    lmpc_module.rollout = timed_rollout
-
-    def timed(logger):
+    def logged(logger):
         def cb(rec, st):
             t = time.perf_counter()
             logger.log_step(rec, st, model)
@@ -80,7 +81,7 @@ def main():
                 ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=pred)
                 logger = (RunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred, background=background)
                           if mode != "no log" else None)
-                cb = timed(logger) if logger else None
+                cb = logged(logger) if logger else None
                 spent[0] = 0.0
                 t0 = time.perf_counter()
                 closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap, on_step=cb)

@@ -7,8 +7,8 @@ import scipy.linalg as sla
 from kexp.clf import ClfConfig, synthesize_clf
 from kexp.control import ExplicitController, Lmpc, LmpcConfig, make_law
 from kexp.control.blocking import block_of_step, block_sizes
-from kexp.control.kernels import (expm_frechet, rollout, rollout_sensitivity, rollout_sensitivity_blocks,
-                                  rollout_sensitivity_poly)
+from kexp.control.kernels import (expm_frechet, rollout, rollout_poly, rollout_sensitivity,
+                                  rollout_sensitivity_blocks, rollout_sensitivity_poly)
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import zoh_degree, zoh_polynomial
 from kexp.data import Circle, DataConfig, collect
@@ -79,6 +79,23 @@ def test_polynomial_zoh_equals_the_per_step_exponential(vdp):
             Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)
             assert np.max(np.abs(Z - Z0)) <= 1e-12 * np.max(np.abs(Z0))
             assert np.max(np.abs(Sb.transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
+
+
+def test_polynomial_rollout_equals_the_exponential_one(vdp):
+    """The prediction of a plan (logged plans, the line search's merit) from the ZOH polynomial equals the
+    exponential rollout to rounding, inside the polynomial's range and outside it (inputs up to ±7)."""
+    _, model, _, _ = vdp
+    lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
+    zp = zoh_polynomial(lam, B, b, model.dt, 5.0)
+    rng = np.random.default_rng(6)
+    bos = block_of_step(block_sizes(100, 5, 20))
+    for lo, hi in ((-5, 5), (-7, 7)):
+        for _ in range(5):
+            U = rng.uniform(lo, hi, (20, 1))
+            z0 = model.lift(rng.uniform(-2, 2, 2))
+            Z0 = rollout(lam, B, b, model.dt, z0, U, bos)
+            assert np.max(np.abs(rollout_poly(zp.coef, zp.rho, lam, B, b, model.dt, z0, U, bos) - Z0)) <= \
+                1e-12 * np.max(np.abs(Z0))
 
 
 def test_expm_frechet_is_the_van_loan_block():

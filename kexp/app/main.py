@@ -101,15 +101,14 @@ def _perturbation_lines(p: dict) -> list[str]:
     return out
 
 
-def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool | None = None,
-        log_thread: bool = True) -> dict:
+def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool | None = None) -> dict:
     """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
     data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
     ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``.
     ``echo`` receives the printed lines; ``auto_progress`` is what ``logging.progress=auto`` means (None: a bar
-    when stderr is a terminal; a sweep job passes False, its bars would overwrite each other).  ``log_thread``:
-    write the log on a writer thread (the same bytes; it pays where a core is free: a sweep whose workers fill
-    the cores passes False, the thread would only compete for the GIL)."""
+    when stderr is a terminal; a sweep job passes False, its bars would overwrite each other).  The log is written
+    synchronously: RunLogger's writer thread measured slower on this 2-core machine, with and without a free core
+    (benchmarks/logging_overhead.py)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -188,7 +187,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     logger = None
     if log_cfg["mcap"]:
         logger = RunLogger(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
-                           prediction_every=log_cfg["prediction_every"], background=log_thread)
+                           prediction_every=log_cfg["prediction_every"])
         logger.log_config(cfg_dict, chash)
         logger.log_model(model)
         omega_r = level_set_boundary(model, clf.lyap, clf.r)
@@ -298,8 +297,8 @@ def _hydra_main(cfg: DictConfig) -> None:
     sweep_job = hc.mode == RunMode.MULTIRUN
     try:
         if sweep_job:  # one line per job (parallel jobs would interleave the model and CLF summaries)
-            print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only, auto_progress=False,
-                                           log_thread=False), out_dir), flush=True)
+            print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only, auto_progress=False),
+                           out_dir), flush=True)
         else:
             run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback

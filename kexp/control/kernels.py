@@ -414,3 +414,46 @@ def rollout_sensitivity_blocks(lam, B, b, dt, z0, U, block_of_step):
         zz[k] = 1.0
         _step_blocks(E, L, zz, Z[j + 1], S, j, blk, k, m)
     return Z, S
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _poly_map(coef, v, E):
+    """E ← Σ_d coef[d] v^d (Horner over whole matrices): :func:`_poly_block` without the derivative."""
+    D = coef.shape[0] - 1
+    n = coef.shape[1]
+    for r in range(n):
+        for c in range(n):
+            E[r, c] = coef[D, r, c]
+    for d in range(D - 1, -1, -1):
+        for r in range(n):
+            for c in range(n):
+                E[r, c] = E[r, c] * v + coef[d, r, c]
+
+
+@njit(cache=True, nogil=True)
+def rollout_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
+    """:func:`rollout` for a one-input model with the ZOH polynomial ``coef`` on |u| ≤ ``rho``: the block's map from
+    the polynomial (the exponential outside the range), once per block.  A logged plan or a line search's merit
+    costs a tenth of the exponential's (equal to :func:`rollout` to rounding, tests/test_lmpc.py)."""
+    k = lam.shape[0]
+    n = k + 1
+    Np = block_of_step.shape[0]
+    Z = np.empty((Np + 1, k))
+    Z[0] = z0
+    E = np.zeros((n, n))
+    last = -1
+    for j in range(Np):
+        blk = block_of_step[j]
+        if blk != last:
+            u = U[blk, 0]
+            if abs(u) <= rho:
+                _poly_map(coef, u / rho, E)
+            else:
+                E[:, :] = expm_small(_augmented(lam, B, b, U[blk], dt))
+            last = blk
+        for r in range(k):
+            acc = E[r, k]
+            for l in range(k):
+                acc += E[r, l] * Z[j, l]
+            Z[j + 1, r] = acc
+    return Z

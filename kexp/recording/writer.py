@@ -3,9 +3,11 @@ simulated time so a killed run keeps all but its last second.
 
 With ``background=True`` the JSON encoding and the MCAP records are written by a writer thread, in the order the
 messages were given (the file is byte-identical to a synchronous one, a test): the control loop only queues each
-message.  The thread runs while the loop is in code that releases the GIL (the LMPC's compiled rollout kernels),
-so on a machine with a free core the log costs the loop almost nothing.  An error on the writer thread is raised
-by the next ``write`` or by ``close``, unchanged.
+message, and the thread can run while the loop is in code that releases the GIL (the LMPC's compiled rollout
+kernels).  An error on the writer thread is raised by the next ``write`` or by ``close``, unchanged.  Measured on
+a 2-core machine it is slower than writing synchronously (+33 % wall against +20 %, ``benchmarks/
+logging_overhead.py``: the loop waits for the GIL more than the thread saves), so ``kexp`` runs write
+synchronously; the option stays for machines and loops where it pays, and the benchmark keeps measuring it.
 """
 from __future__ import annotations
 
@@ -53,6 +55,7 @@ class RunLogger:
         self.prediction_every = prediction_every
         self._next_flush = flush_every
         self._closed = False
+        self._pending: list = []     # encoded messages waiting for the next flush (synchronous mode)
         self._queue: queue.SimpleQueue | None = None
         self._error: BaseException | None = None
         if background:
@@ -67,7 +70,9 @@ class RunLogger:
         seq = self._seq[topic]
         self._seq[topic] += 1
         if self._queue is None:
-            self._add(channel, ns, payload, seq)
+            # encoded now (the payload may change after this call), framed at the next flush: MCAP's records are
+            # Python code that runs ~2x faster in one batch than spread between control steps (cold caches)
+            self._pending.append((channel, ns, encode(payload), seq))
             return
         self._raise_pending()
         self._queue.put((channel, ns, payload, seq))
@@ -75,8 +80,15 @@ class RunLogger:
     def _add(self, channel: int, ns: int, payload: dict, seq: int) -> None:
         self._w.add_message(channel_id=channel, log_time=ns, publish_time=ns, data=encode(payload), sequence=seq)
 
+    def _write_pending(self) -> None:
+        add = self._w.add_message
+        for channel, ns, data, seq in self._pending:
+            add(channel_id=channel, log_time=ns, publish_time=ns, data=data, sequence=seq)
+        self._pending.clear()
+
     def _flush(self) -> None:
         if self._queue is None:
+            self._write_pending()
             self._w.flush()
         else:
             self._queue.put(None)
@@ -167,6 +179,7 @@ class RunLogger:
         try:
             self._stop_thread()
             self._raise_pending()
+            self._write_pending()
             self._w.finish()
         finally:
             self._f.close()
@@ -179,6 +192,7 @@ class RunLogger:
         self._closed = True
         try:
             self._stop_thread()
+            self._write_pending()
             self._w.flush()
         except BaseException:  # noqa: BLE001 - the run's own exception is the one to report
             pass
