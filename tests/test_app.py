@@ -141,3 +141,20 @@ def test_a_sweep_job_draws_no_progress_bar_on_a_terminal(tmp_path, monkeypatch):
         monkeypatch.setattr(sys, "stderr", err)
         run(cfg, tmp_path / str(auto), echo=lambda *_: None, auto_progress=auto)
         assert ("closed loop [" in err.getvalue()) is expect_bar, err.getvalue()[-300:]
+
+
+@pytest.mark.parametrize("preset, base, bound", [("pendulum_tight", "pendulum", 1.0),
+                                                 ("vanderpol_tight", "vanderpol", 0.75)])
+def test_tight_bound_presets_are_the_working_presets_with_the_bound(preset, base, bound):
+    """+experiment=<system>_tight composes to exactly +experiment=<system> with |u| ≤ bound (the rows
+    <system>-uN of results/regions.sh)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from kexp.app.main import CONF_DIR
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        tight = compose(config_name="config", overrides=[f"+experiment={preset}"])
+        ref = compose(config_name="config", overrides=[f"+experiment={base}", f"controller.u_min={-bound}",
+                                                       f"controller.u_max={bound}"])
+    assert OmegaConf.to_container(tight) == OmegaConf.to_container(ref)
+    assert tight.controller.u_max == bound and tight.controller.u_min == -bound
