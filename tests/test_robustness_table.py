@@ -90,15 +90,11 @@ def test_readme_shows_the_committed_robustness_table():
     assert committed.read_text().strip() in readme
 
 
-@pytest.mark.parametrize("script, row, dest, lo", [("robustness.sh", "vanderpol_lmpc-reg-noise1", "results/robustness", -1),
-                                                   ("regions.sh", "pendulum-u1_nmpc", "results/regions", -2)])
-def test_row_scripts_run_one_sweep_per_row_and_refuse_bad_names(tmp_path, script, row, dest, lo):
-    """results/robustness.sh and regions.sh (through results/sweep_lib.sh), with kexp and kexp-results replaced by
-    stubs that record their arguments: one 100-IC multirun per row from default_rng(42) over [lo, -lo]², then
-    one collect into the row's folder; a row name they cannot parse stops with exit code 2 before any sweep."""
+def _stubbed_results(tmp_path):
+    """A copy of results/ (scripts only) under tmp_path/repo and an environment whose kexp and kexp-results are
+    stubs appending their arguments to tmp_path/calls: (the copy's root, the environment)."""
     import os
     import shutil
-    import subprocess
     root = tmp_path / "repo"
     shutil.copytree(RESULTS, root / "results", ignore=shutil.ignore_patterns("*.csv", "*.md"))
     bin_dir = tmp_path / "bin"
@@ -106,7 +102,17 @@ def test_row_scripts_run_one_sweep_per_row_and_refuse_bad_names(tmp_path, script
     for name in ("kexp", "kexp-results"):
         (bin_dir / name).write_text(f'#!/bin/sh\nprintf "%s\\n" {name} "$@" >> "{tmp_path}/calls"\n')
         (bin_dir / name).chmod(0o755)
-    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    return root, {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+
+
+@pytest.mark.parametrize("script, row, dest, lo", [("robustness.sh", "vanderpol_lmpc-reg-noise1", "results/robustness", -1),
+                                                   ("regions.sh", "pendulum-u1_nmpc", "results/regions", -2)])
+def test_row_scripts_run_one_sweep_per_row_and_refuse_bad_names(tmp_path, script, row, dest, lo):
+    """results/robustness.sh and regions.sh (through results/sweep_lib.sh), with kexp and kexp-results replaced by
+    stubs that record their arguments: one 100-IC multirun per row from default_rng(42) over [lo, -lo]², then
+    one collect into the row's folder; a row name they cannot parse stops with exit code 2 before any sweep."""
+    import subprocess
+    root, env = _stubbed_results(tmp_path)
     proc = subprocess.run(["bash", str(root / "results" / script), row], env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     calls = (tmp_path / "calls").read_text().split("kexp")
@@ -127,17 +133,8 @@ def test_region_map_rows_add_300_x0_and_merge_them_with_the_rows_100(tmp_path):
     """results/regions.sh --map ROW (kexp and kexp-results stubbed): refuses (exit 2, no sweep) while the row's
     100-x0 CSV is missing; else one multirun over default_rng(43).uniform(-2, 2, (2, 300)).T, collected into
     results/regions/map/300/, and results/regions/map/ROW.csv = the row's 100 lines then the 300 (one header)."""
-    import os
-    import shutil
     import subprocess
-    root = tmp_path / "repo"
-    shutil.copytree(RESULTS, root / "results", ignore=shutil.ignore_patterns("*.csv", "*.md"))
-    bin_dir = tmp_path / "bin"
-    bin_dir.mkdir()
-    for name in ("kexp", "kexp-results"):
-        (bin_dir / name).write_text(f'#!/bin/sh\nprintf "%s\\n" {name} "$@" >> "{tmp_path}/calls"\n')
-        (bin_dir / name).chmod(0o755)
-    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    root, env = _stubbed_results(tmp_path)
     script = ["bash", str(root / "results" / "regions.sh"), "--map", "vanderpol_lmpc"]
     missing = subprocess.run(script, env=env, capture_output=True, text=True)
     assert missing.returncode == 2 and "run results/regions.sh vanderpol_lmpc first" in missing.stderr
