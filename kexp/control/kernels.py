@@ -266,22 +266,32 @@ def expm_frechet(M, D, E, L):
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
-def _poly_block(coef, v, inv_rho, E, L):
-    """E ← Σ_d coef[d] v^d and L ← (1/ρ)·Σ_d d·coef[d] v^{d−1} (Horner over whole matrices, contiguous)."""
+def _poly_map(coef, v, E):
+    """E ← Σ_d coef[d] v^d (Horner over whole matrices): :func:`_poly_block` without the derivative."""
     D = coef.shape[0] - 1
     n = coef.shape[1]
     for r in range(n):
         for c in range(n):
             E[r, c] = coef[D, r, c]
-            L[r, c] = D * coef[D, r, c]
     for d in range(D - 1, -1, -1):
         for r in range(n):
             for c in range(n):
                 E[r, c] = E[r, c] * v + coef[d, r, c]
-        if d >= 1:
-            for r in range(n):
-                for c in range(n):
-                    L[r, c] = L[r, c] * v + d * coef[d, r, c]
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _poly_block(coef, v, inv_rho, E, L):
+    """E ← Σ_d coef[d] v^d and L ← (1/ρ)·Σ_d d·coef[d] v^{d−1} (Horner over whole matrices, contiguous)."""
+    _poly_map(coef, v, E)
+    D = coef.shape[0] - 1
+    n = coef.shape[1]
+    for r in range(n):
+        for c in range(n):
+            L[r, c] = D * coef[D, r, c]
+    for d in range(D - 1, 0, -1):
+        for r in range(n):
+            for c in range(n):
+                L[r, c] = L[r, c] * v + d * coef[d, r, c]
     for r in range(n):
         for c in range(n):
             L[r, c] *= inv_rho
@@ -301,7 +311,13 @@ def _step_poly(E, L, zz, z_next, S, j, blk, k):
             dacc += L[r, l] * zz[l]
         z_next[r] = acc
         S[blk, j + 1, r] = dacc
-    for c in range(blk + 1):
+    _propagate(E, S, j, blk + 1, k)
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def _propagate(E, S, j, ncols, k):
+    """S[c, j+1] += E[:k, :k]·S[c, j] for the sensitivity columns c < ``ncols`` (those of the blocks so far)."""
+    for c in range(ncols):
         for r in range(k):
             acc = 0.0
             for l in range(k):
@@ -367,12 +383,7 @@ def _step_blocks(E, L, zz, z_next, S, j, blk, k, m):
             for l in range(n):
                 dacc += L[i, r, l] * zz[l]
             S[c, j + 1, r] = dacc
-    for c in range((blk + 1) * m):
-        for r in range(k):
-            acc = 0.0
-            for l in range(k):
-                acc += E[r, l] * S[c, j, l]
-            S[c, j + 1, r] += acc
+    _propagate(E, S, j, (blk + 1) * m, k)
 
 
 @njit(cache=True, nogil=True)   # the run's log writer thread works meanwhile
@@ -414,20 +425,6 @@ def rollout_sensitivity_blocks(lam, B, b, dt, z0, U, block_of_step):
         zz[k] = 1.0
         _step_blocks(E, L, zz, Z[j + 1], S, j, blk, k, m)
     return Z, S
-
-
-@njit(cache=True, fastmath={"reassoc", "contract"})
-def _poly_map(coef, v, E):
-    """E ← Σ_d coef[d] v^d (Horner over whole matrices): :func:`_poly_block` without the derivative."""
-    D = coef.shape[0] - 1
-    n = coef.shape[1]
-    for r in range(n):
-        for c in range(n):
-            E[r, c] = coef[D, r, c]
-    for d in range(D - 1, -1, -1):
-        for r in range(n):
-            for c in range(n):
-                E[r, c] = E[r, c] * v + coef[d, r, c]
 
 
 @njit(cache=True, nogil=True)
