@@ -252,7 +252,7 @@ def lmpc_objective(model, clf, config: LmpcConfig, z0, U, active: str) -> float:
                 model.dt, np.ascontiguousarray(z0, dtype=float), U, bos)
     s = 0.0
     if active == "21e":
-        s = max(0.0, float(np.max(np.einsum("jk,kl,jl->j", Z[1:], clf.P, Z[1:]))) - clf.r_hat)
+        s = max(0.0, float(np.max(clf.lyap.value(Z[1:]))) - clf.r_hat)
     zz = Z[1:] if config.state_cost == "z" else Z[1:] @ np.asarray(model.C).T
     r_diag = np.repeat(sizes.astype(float), model.m) * config.r
     cost = model.dt * config.w * float(np.sum(zz * zz)) + model.dt * float(np.sum(r_diag * U.reshape(-1) ** 2))
@@ -369,7 +369,7 @@ class IpoptLmpc:
         if active == "21e" or self.record_prediction:   # the exact (kexp) prediction of the applied plan
             Z = self._rollout(z0, U)
         if active == "21e":
-            vmax = float(np.max(np.einsum("jk,kl,jl->j", Z[1:], self.P, Z[1:])))
+            vmax = float(np.max(self.clf.lyap.value(Z[1:])))
             slack = max(0.0, vmax - self.clf.r_hat)
             binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
         elif active == "21f":
