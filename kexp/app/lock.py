@@ -38,8 +38,11 @@ def _normalise(name: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
-@lru_cache(maxsize=None)   # a metadata lookup scans site-packages (~1 ms each, ~170 ms per run for the lock's pins);
-def _installed(name: str) -> str | None:   # the installed versions do not change while a process runs
+@lru_cache(maxsize=None)
+def installed_version(name: str) -> str | None:
+    """The installed version of package ``name`` (None: not installed), looked up once per process: a metadata
+    lookup scans site-packages (~1 ms each, ~170 ms per run for the lock's pins and the run's provenance), and the
+    installed versions do not change while a process runs."""
     from importlib.metadata import PackageNotFoundError, version
     try:
         return version(name)
@@ -55,7 +58,7 @@ def lock_info(path: str | Path | None = None) -> LockInfo:
                                           "versions not checked against a lock")
     data = path.read_bytes()
     wanted = pins(data.decode("utf-8", errors="replace"))
-    differ = [(name, ver, _installed(name)) for name, ver in sorted(wanted.items())]
+    differ = [(name, ver, installed_version(name)) for name, ver in sorted(wanted.items())]
     differ = [(n, v, got) for n, v, got in differ if got != v]
     note = ""
     if differ:

@@ -30,7 +30,7 @@ from .build import (build_clf, build_controller, build_controller_spec, build_da
                     check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
                     system_settings)
 from .cache import Cache, clf_key, model_key
-from .lock import _installed, lock_info
+from .lock import installed_version, lock_info
 from .progress import Progress
 from .schema import register as _register_schema
 
@@ -39,8 +39,8 @@ _register_schema()  # 'kexp_schema' in Hydra's ConfigStore: conf/config.yaml ext
 
 def _versions() -> dict:
     """The versions of kexp and the packages its numbers depend on (None: not installed); looked up once per
-    process (kexp.app.lock._installed)."""
-    return {pkg: _installed(pkg) for pkg in ("kexp", "numpy", "scipy", "cvxpy", "clarabel", "piqp", "mcap",
+    process (kexp.app.lock.installed_version)."""
+    return {pkg: installed_version(pkg) for pkg in ("kexp", "numpy", "scipy", "cvxpy", "clarabel", "piqp", "mcap",
                                              "rerun-sdk", "hydra-core", "numba")}
 
 

@@ -315,6 +315,16 @@ def _step_poly(E, L, zz, z_next, S, j, blk, k):
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
+def _map_state(E, zz, z_next, k):
+    """z_next ← (E·zz)[:k]: one step of a block's map E on the augmented state zz = [z; 1]."""
+    for r in range(k):
+        acc = 0.0
+        for l in range(k + 1):
+            acc += E[r, l] * zz[l]
+        z_next[r] = acc
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
 def _propagate(E, S, j, ncols, k):
     """S[c, j+1] += E[:k, :k]·S[c, j] for the sensitivity columns c < ``ncols`` (those of the blocks so far)."""
     for c in range(ncols):
@@ -371,11 +381,7 @@ def _step_blocks(E, L, zz, z_next, S, j, blk, k, m):
     z_next ← (E·zz)[:k]; S[blk·m + i, j+1] ← (L_i·zz)[:k]; S[c, j+1] += E[:k, :k]·S[c, j] for the columns of the
     blocks ≤ blk."""
     n = k + 1
-    for r in range(k):
-        acc = 0.0
-        for l in range(n):
-            acc += E[r, l] * zz[l]
-        z_next[r] = acc
+    _map_state(E, zz, z_next, k)
     for i in range(m):
         c = blk * m + i
         for r in range(k):
@@ -437,6 +443,7 @@ def rollout_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
     Np = block_of_step.shape[0]
     Z = np.empty((Np + 1, k))
     Z[0] = z0
+    zz = np.empty(n)
     E = np.zeros((n, n))
     last = -1
     for j in range(Np):
@@ -448,9 +455,7 @@ def rollout_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
             else:
                 E[:, :] = expm_small(_augmented(lam, B, b, U[blk], dt))
             last = blk
-        for r in range(k):
-            acc = E[r, k]
-            for l in range(k):
-                acc += E[r, l] * Z[j, l]
-            Z[j + 1, r] = acc
+        zz[:k] = Z[j]
+        zz[k] = 1.0
+        _map_state(E, zz, Z[j + 1], k)
     return Z

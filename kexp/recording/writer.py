@@ -5,9 +5,10 @@ With ``background=True`` the JSON encoding and the MCAP records are written by a
 messages were given (the file is byte-identical to a synchronous one, a test): the control loop only queues each
 message, and the thread can run while the loop is in code that releases the GIL (the LMPC's compiled rollout
 kernels).  An error on the writer thread is raised by the next ``write`` or by ``close``, unchanged.  Measured on
-a 2-core machine it is slower than writing synchronously (+33 % wall against +20 %, ``benchmarks/
-logging_overhead.py``: the loop waits for the GIL more than the thread saves), so ``kexp`` runs write
-synchronously; the option stays for machines and loops where it pays, and the benchmark keeps measuring it.
+a 2-core machine it is slower than writing synchronously (+9.7 % wall against at most +7.9 %, the README's
+logging table, ``benchmarks/logging_overhead.py``: the loop waits for the GIL more than the thread saves), so
+``kexp`` runs write synchronously; the option stays for machines and loops where it pays, and the benchmark keeps
+measuring it.
 """
 from __future__ import annotations
 
@@ -74,7 +75,7 @@ class RunLogger:
             # Python code that runs ~2x faster in one batch than spread between control steps (cold caches)
             self._pending.append((channel, ns, encode(payload), seq))
             return
-        self._raise_pending()
+        self._raise_thread_error()
         self._queue.put((channel, ns, payload, seq))
 
     def _add(self, channel: int, ns: int, payload: dict, seq: int) -> None:
@@ -109,7 +110,7 @@ class RunLogger:
             except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread unchanged
                 self._error = exc
 
-    def _raise_pending(self) -> None:
+    def _raise_thread_error(self) -> None:
         if self._error is not None:
             error, self._error = self._error, None
             raise error
@@ -178,7 +179,7 @@ class RunLogger:
         self._closed = True
         try:
             self._stop_thread()
-            self._raise_pending()
+            self._raise_thread_error()
             self._write_pending()
             self._w.finish()
         finally:

@@ -4,12 +4,11 @@ The closed loop integrates a thousand short intervals per run.  ``scipy.integrat
 on each call's bookkeeping (building a solver object, validation, output) than on the right-hand side's
 evaluations; Hairer's DOP853 behind ``scipy.integrate.ode`` does the same adaptive 8th-order step with the same
 error control (rtol, atol) without it (with the constant-G path below: 4.8–5.3× faster per step on a quiet
-machine, ``benchmarks/stepper.py``).  The two take the same
-steps here (results equal to 2.2e-16 on 200 random states and inputs; the test allows 1e-12, far below the
-tolerance).  Methods other than DOP853 and RK45 (``dopri5``) fall back to ``integrate``.
+machine, ``benchmarks/stepper.py``).  The two take the same steps here (results equal to 2.2e-16 on 200 random
+states and inputs; the test allows 1e-12, far below the tolerance).  Methods other than DOP853 and RK45 (``dopri5``) fall back to ``integrate``.
 
-A system that declares ``constant_input_matrix = True`` (all of kexp's own) has G·u formed once per step, with
-the same operation as ``ControlAffineSystem.rhs``; each right-hand-side call is then the drift plus that vector
+A system that declares ``constant_input_matrix = True`` (all of kexp's own) has G·u formed once per step by
+``ControlAffineSystem.input_term``, the term ``rhs`` adds; each right-hand-side call is then the drift plus that vector
 (bit-identical to ``rhs``, a test), about a quarter of the time per call.
 """
 from __future__ import annotations
@@ -75,8 +74,7 @@ class HeldInputStepper:
         self._error = None
         self._gu = None
         if self.system.constant_input_matrix:
-            g = self.system.input_matrix(np.asarray(x, float)[None])
-            self._gu = np.einsum("...ij,...j->...i", g, self._u)[0]   # as in ControlAffineSystem.rhs
+            self._gu = self.system.input_term(np.asarray(x, float)[None], self._u)[0]   # as rhs adds it
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # dop853 warns before it gives up; the failure is raised below
             try:

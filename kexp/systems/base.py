@@ -54,8 +54,11 @@ class ControlAffineSystem:
         f = self.drift(x)
         if u is None:
             return f
-        g = self.input_matrix(x)
-        return f + np.einsum("...ij,...j->...i", g, np.asarray(u, dtype=float))
+        return f + self.input_term(x, u)
+
+    def input_term(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """G(x)·u for states ``x`` (..., n) and inputs ``u`` (..., m): (..., n)."""
+        return np.einsum("...ij,...j->...i", self.input_matrix(x), np.asarray(u, dtype=float))
 
     def wrap(self, x: np.ndarray) -> np.ndarray:
         """Map angle states into [-period/2, period/2); other states unchanged."""
