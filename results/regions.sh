@@ -51,8 +51,9 @@ for row in "$@"; do
         continue
     fi
     [ -f "results/regions/$row.csv" ] || { echo "no results/regions/$row.csv: run results/regions.sh $row first" >&2; exit 2; }
-    sweep_row "$row" "sweeps/regions/map/$row" results/regions/map/300 "$X0" "${ov[@]}"
     more=results/regions/map/300/$row.csv
+    rm -f "$more"      # a failed collect must not leave an earlier sweep's x0 to be merged
+    sweep_row "$row" "sweeps/regions/map/$row" results/regions/map/300 "$X0" "${ov[@]}"
     [ -f "$more" ] || continue
     if [ "$(head -n1 "$more")" != "$(head -n1 "results/regions/$row.csv")" ]; then
         echo "$more and results/regions/$row.csv have different columns: not merged" >&2; exit 2

@@ -90,9 +90,10 @@ def test_readme_shows_the_committed_robustness_table():
     assert committed.read_text().strip() in readme
 
 
-def _stubbed_results(tmp_path):
+def _stubbed_results(tmp_path, collected=None):
     """A copy of results/ (scripts only) under tmp_path/repo and an environment whose kexp and kexp-results are
-    stubs appending their arguments to tmp_path/calls: (the copy's root, the environment)."""
+    stubs appending their arguments to tmp_path/calls; with ``collected`` (a CSV path), `kexp-results collect DIR
+    ROW -o DEST` also copies that file to DEST/ROW.csv: (the copy's root, the environment)."""
     import os
     import shutil
     root = tmp_path / "repo"
@@ -100,7 +101,10 @@ def _stubbed_results(tmp_path):
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     for name in ("kexp", "kexp-results"):
-        (bin_dir / name).write_text(f'#!/bin/sh\nprintf "%s\\n" {name} "$@" >> "{tmp_path}/calls"\n')
+        body = f'#!/bin/sh\nprintf "%s\\n" {name} "$@" >> "{tmp_path}/calls"\n'
+        if name == "kexp-results" and collected is not None:
+            body += f'[ "$1" = collect ] && cp "{collected}" "$5/$3.csv"\n'
+        (bin_dir / name).write_text(body)
         (bin_dir / name).chmod(0o755)
     return root, {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
 
@@ -132,18 +136,21 @@ def test_row_scripts_run_one_sweep_per_row_and_refuse_bad_names(tmp_path, script
 def test_region_map_rows_add_300_x0_and_merge_them_with_the_rows_100(tmp_path):
     """results/regions.sh --map ROW (kexp and kexp-results stubbed): refuses (exit 2, no sweep) while the row's
     100-x0 CSV is missing; else one multirun over default_rng(43).uniform(-2, 2, (2, 300)).T, collected into
-    results/regions/map/300/, and results/regions/map/ROW.csv = the row's 100 lines then the 300 (one header)."""
+    results/regions/map/300/, and results/regions/map/ROW.csv = the row's 100 lines then the 300 (one header);
+    a collect that writes nothing merges nothing (an earlier sweep's CSV is removed first)."""
     import subprocess
-    root, env = _stubbed_results(tmp_path)
+    header = "x0_1,x0_2,status,success,cost\n"
+    collected = tmp_path / "collected.csv"
+    collected.write_text(header + "1.5,-1.5,completed,True,3.0\n-1.9,0.3,completed,False,9.0\n")
+    root, env = _stubbed_results(tmp_path, collected)
     script = ["bash", str(root / "results" / "regions.sh"), "--map", "vanderpol_lmpc"]
     missing = subprocess.run(script, env=env, capture_output=True, text=True)
     assert missing.returncode == 2 and "run results/regions.sh vanderpol_lmpc first" in missing.stderr
     assert not (tmp_path / "calls").exists()
-    header = "x0_1,x0_2,status,success,cost\n"
     (root / "results" / "regions" / "map" / "300").mkdir(parents=True)
     (root / "results" / "regions" / "vanderpol_lmpc.csv").write_text(header + "0.1,0.2,completed,True,1.0\n")
-    (root / "results" / "regions" / "map" / "300" / "vanderpol_lmpc.csv").write_text(
-        header + "1.5,-1.5,completed,True,3.0\n-1.9,0.3,completed,False,9.0\n")
+    stale = root / "results" / "regions" / "map" / "300" / "vanderpol_lmpc.csv"
+    stale.write_text(header + "0.0,0.0,completed,True,7.0\n")      # an earlier sweep's
     proc = subprocess.run(script, env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     kexp_args = next(c for c in (tmp_path / "calls").read_text().split("kexp") if "--multirun" in c).split("\n")
@@ -151,3 +158,9 @@ def test_region_map_rows_add_300_x0_and_merge_them_with_the_rows_100(tmp_path):
     assert np.array_equal(np.array(eval(f"[{x0}]")), np.random.default_rng(43).uniform(-2, 2, (2, 300)).T)
     assert (root / "results" / "regions" / "map" / "vanderpol_lmpc.csv").read_text() == (
         header + "0.1,0.2,completed,True,1.0\n1.5,-1.5,completed,True,3.0\n-1.9,0.3,completed,False,9.0\n")
+    stale.write_text(header + "0.0,0.0,completed,True,7.0\n")
+    merged = root / "results" / "regions" / "map" / "vanderpol_lmpc.csv"
+    merged.unlink()
+    _, no_collect = _stubbed_results(tmp_path / "again")
+    assert subprocess.run(script, env=no_collect, capture_output=True, text=True).returncode == 0
+    assert not stale.exists() and not merged.exists()
