@@ -41,7 +41,7 @@ def _normalise(name: str) -> str:
 @lru_cache(maxsize=None)
 def installed_version(name: str) -> str | None:
     """The installed version of package ``name`` (None: not installed), looked up once per process: a metadata
-    lookup scans site-packages (~1 ms each, ~170 ms per run for the lock's pins and the run's provenance), and the
+    lookup scans site-packages (0.17 s per run for the lock's pins and the run's provenance, under cProfile), and the
     installed versions do not change while a process runs."""
     from importlib.metadata import PackageNotFoundError, version
     try:

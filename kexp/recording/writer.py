@@ -5,7 +5,7 @@ With ``background=True`` the JSON encoding and the MCAP records are written by a
 messages were given (the file is byte-identical to a synchronous one, a test): the control loop only queues each
 message, and the thread can run while the loop is in code that releases the GIL (the LMPC's compiled rollout
 kernels).  An error on the writer thread is raised by the next ``write`` or by ``close``, unchanged.  Measured on
-a 2-core machine it is slower than writing synchronously (+9.7 % wall against at most +7.9 %, the README's
+a 2-core machine it is slower than writing synchronously (+10.1 % wall against +0.4 %, the README's
 logging table, ``benchmarks/logging_overhead.py``: the loop waits for the GIL more than the thread saves), so
 ``kexp`` runs write synchronously; the option stays for machines and loops where it pays, and the benchmark keeps
 measuring it.
