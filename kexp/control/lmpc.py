@@ -206,8 +206,10 @@ class Lmpc:
                                   float(max(np.max(np.abs(self.u_min)), np.max(np.abs(self.u_max)))))
         self._cost_diag = np.diag(2 * model.dt * self.r_diag) + 1e-10 * np.eye(self.nu)
         self.reset()
-        # compile (or load from numba's cache) now, not inside the first control step
+        # compile (or load from numba's cache) now, not inside the first control step: the sensitivities, and the
+        # rollout of a logged plan or a line search
         self._sensitivity(np.zeros(self.k), np.zeros((self.nb, self.m)))
+        self._rollout(np.zeros(self.k), np.zeros((self.nb, self.m)))
 
     def reset(self) -> None:
         self._useq = np.zeros((self.cfg.horizon, self.m))  # per-step guess
