@@ -160,26 +160,33 @@ def load_baseline(rev: str):
 
 
 # ---------------------------------------------------------------------------------------------------- flops
-def step_flops(ctrl, qp_iterations: float, active: str) -> dict[str, float]:
+def step_flops(ctrl, qp_iterations: float, active: str, degrees=None) -> dict[str, float]:
     """Floating-point operations (multiply and add counted apart) of one RTI step of ``ctrl`` (an Lmpc with the
-    one-input polynomial ZOH), from the algorithm's sizes: k, n = k+1, the polynomial degree D, the block sizes,
-    horizon Np, nu inputs, and PIQP's iterations.  Lower-order terms (vector updates of PIQP, bookkeeping) are
-    left out, so this is a lower bound on the work.
-      map + derivative per block   E by Horner 2·D·n², dE/du 2·(D−1)·n² + n²
-      per step                     E·[z;1] and L·[z;1] on k rows: 4·k·n; sensitivities E·S on the blocks so
-                                   far: 2·k²·(b+1)
-      condensing                   H = 2Δw·F Fᵀ with F (nu, Np·k): 2·nu²·Np·k; g and the affine part:
-                                   4·nu·Np·k; (21e) rows: 2·Np·k·(k + nu)
-      QP (dense PIQP, per iter.)   the reduced KKT matrix H + ρI + Gᵀ W G (p = Np rows for (21e), else 1): p·n_x², its
-                                   Cholesky n_x³/3, two triangular solves 4·n_x², products with G and Gᵀ 4·p·n_x
+    one-input polynomial ZOH), from the algorithm's sizes: k, n = k+1, the polynomial's degree per block
+    (``degrees``, the cut of kexp.control.condense.poly_degree; default the full degree D), the block sizes,
+    horizon Np, nu inputs, the step each column's block starts (f_c), and PIQP's iterations.  Lower-order terms
+    (vector updates of PIQP, bookkeeping) are left out, so this is a lower bound on the work.
+      map + derivative per block   E and dE/du by one Horner pass: 4·D_b·n²
+      per step                     E·[z;1] and L·[z;1] on k rows: 4·k·n; sensitivities A·s_c on the started
+                                   columns: 2·k²·(b+1)
+      condensing                   H: one dot product per pair c ≤ d over the steps both are non-zero,
+                                   Σ_{c≤d} 2·k·(Np − f_d); g: Σ_c 2·k·(Np − f_c) + 2·nu²; (21e) rows and V:
+                                   Np·2·k² + Σ_c 2·k·(Np − f_c)
+      QP (dense PIQP, per iter.)   the reduced KKT matrix H + ρI + Gᵀ W G (one row), its Cholesky n_x³/3, two
+                                   triangular solves 4·n_x², products with G and Gᵀ 4·n_x
     """
-    k, n, D = ctrl.k, ctrl.k + 1, ctrl.zoh.degree
+    k, n = ctrl.k, ctrl.k + 1
     Np, nu, nb = ctrl.cfg.horizon, ctrl.nu, ctrl.nb
-    nx, p = nu + 1, (Np if active == "21e" else 1)
+    degrees = np.full(nb, ctrl.zoh.degree) if degrees is None else np.asarray(degrees)
+    first = np.asarray(ctrl._first)
+    nx, p = nu + 1, 1
+    after = Np - first                       # steps at which each column is non-zero
+    gram = sum(2 * k * after[d] * (d + 1) for d in range(nu))        # pairs c ≤ d: the later column's steps
     parts = {
-        "map + derivative per block": nb * (2 * D * n * n + 2 * (D - 1) * n * n + n * n),
+        "map + derivative per block": float(np.sum(4 * degrees * n * n)),
         "per-step propagation": sum(4 * k * n + 2 * k * k * (int(b) + 1) for b in ctrl.bos),
-        "condensing": 2 * nu * nu * Np * k + 4 * nu * Np * k + (2 * Np * k * (k + nu) if active == "21e" else 0),
+        "condensing": gram + float(np.sum(2 * k * after)) + 2 * nu * nu
+        + ((Np * 2 * k * k + float(np.sum(2 * k * after))) if active == "21e" else 0),
         "QP (PIQP)": qp_iterations * (p * nx * nx + nx ** 3 / 3 + 4 * nx * nx + 4 * p * nx),
     }
     parts["total"] = sum(parts.values())
@@ -258,7 +265,7 @@ def breakdown(ctrls, z0, warm, reps: int):
     with contextlib.ExitStack() as undo:
         for ctrl in ctrls:
             mod = sys.modules[type(ctrl).__module__]
-            acc = dict(rs=0.0, qp_data=0.0, qp=0.0, piqp=0.0, rollout=0.0)
+            acc = dict(rs=0.0, maps=0.0, cond=0.0, qp_data=0.0, qp=0.0, piqp=0.0, rollout=0.0)
             accs.append(acc)
 
             def timed(fn, key, acc=acc):
@@ -287,7 +294,12 @@ def breakdown(ctrls, z0, warm, reps: int):
 
                 qp.solve = solve
                 undo.callback(delattr, qp, "solve")
-            if hasattr(type(ctrl), "_sensitivity"):           # today's: the rollout and sensitivities
+            if hasattr(type(ctrl), "_condense"):              # today's: block maps, then the condensing kernel
+                ctrl._maps = timed(ctrl._maps, "maps")
+                ctrl._condense = timed(ctrl._condense, "cond")
+                undo.callback(delattr, ctrl, "_maps")
+                undo.callback(delattr, ctrl, "_condense")
+            elif hasattr(type(ctrl), "_sensitivity"):         # issue 14's first round: the rollout and sensitivities
                 ctrl._sensitivity = timed(ctrl._sensitivity, "rs")
                 undo.callback(delattr, ctrl, "_sensitivity")
             else:                                             # the baseline: its module's kernel
@@ -317,8 +329,10 @@ def breakdown(ctrls, z0, warm, reps: int):
     out = []
     for acc, info, tt in zip(accs, infos, totals):
         total = float(np.sum(tt))
-        parts = [("rollout and sensitivities (numba)", acc["rs"]),
-                 ("condensing (rest of _qp_data: H, g, G, h_u)", acc["qp_data"] - acc["rs"]),
+        acc["rs"] += acc["maps"] + acc["cond"]
+        parts = [("rollout and sensitivities (numba; today: block maps, then one kernel that also forms H, g and the "
+                  "(21e) rows)", acc["rs"]),
+                 ("condensing in numpy (rest of _qp_data: H, g, G, h_u)", acc["qp_data"] - acc["rs"]),
                  ("DenseQp.solve: PIQP update + solve", acc["piqp"]),
                  ("DenseQp.solve: guard + array conversion", acc["qp"] - acc["piqp"]),
                  ("exact rollout of the applied plan (21e check)", acc["rollout"]),
@@ -360,6 +374,7 @@ def main(argv=None) -> int:
 
     from kexp.clf import ClfConfig, synthesize_clf
     from kexp.control import Lmpc, LmpcConfig, make_law
+    from kexp.control.condense import poly_degree
     from kexp.control.oracle import IpoptLmpc
     from kexp.data import Circle, DataConfig, collect
     from kexp.dictionary import Monomials
@@ -546,8 +561,8 @@ def main(argv=None) -> int:
        "time, after 5 warm-up steps)")
     pr("")
     pr("States from the RTI closed loop of IC1, with the warm start the controller had there.  The parts are "
-       "timed by wrapping, in this script, the rollout-and-sensitivity call (Lmpc._sensitivity; in the baseline its "
-       "module's rollout_sensitivity), the module's rollout, DenseQp.solve and Lmpc._qp_data; 'PIQP update + "
+       "timed by wrapping, in this script, the rollout-and-sensitivity calls (Lmpc._maps and Lmpc._condense; "
+       "in a baseline Lmpc._sensitivity or its module's rollout_sensitivity), the module's rollout, DenseQp.solve and Lmpc._qp_data; 'PIQP update + "
        "solve' is QpResult.solve_time (wall clock around PIQP's update()/solve()).  Times are means per step"
        + (f"; the baseline ({old_sha}) and today's controller alternate every repetition." if old_lmpc else "."))
     pr("")
@@ -575,20 +590,21 @@ def main(argv=None) -> int:
             pr(md_table(["part", "ms / step", "share"], rows))
         pr("")
         if ctrls[-1].zoh is not None:
-            fl = step_flops(ctrls[-1], info.qp_iterations, info.active)
+            cur = ctrls[-1]
+            ubar = cur._blocks_from_steps(warm)[:, 0]
+            degrees = [poly_degree(cur.zoh.norms, u / cur.zoh.rho, cur.zoh.degree) for u in ubar]
+            fl = step_flops(cur, info.qp_iterations, info.active, degrees)
             frows = []
-            times = {"map + derivative per block": None, "per-step propagation": None,
-                     "condensing": acc["qp_data"] - acc["rs"], "QP (PIQP)": acc["piqp"], "total": med}
+            times = {"map + derivative per block": acc["maps"], "per-step propagation": None, "condensing": None,
+                     "QP (PIQP)": acc["piqp"], "total": med}
             for name, f in fl.items():
                 t = times.get(name)
                 frows.append([name, f"{f / 1e6:.3f}", f"{f / peak / 1e6:.4f}",
                               "–" if t is None else f"{t * 1e3:.3f}",
                               "–" if t is None else f"{f / t / 1e9:.2f}"])
-            frows.insert(2, ["(both: rollout and sensitivities)",
-                             f"{(fl['map + derivative per block'] + fl['per-step propagation']) / 1e6:.3f}",
-                             f"{(fl['map + derivative per block'] + fl['per-step propagation']) / peak / 1e6:.4f}",
-                             f"{acc['rs'] * 1e3:.3f}",
-                             f"{(fl['map + derivative per block'] + fl['per-step propagation']) / acc['rs'] / 1e9:.2f}"])
+            kern = fl["per-step propagation"] + fl["condensing"]
+            frows.insert(3, ["(both: the condensing kernel)", f"{kern / 1e6:.3f}", f"{kern / peak / 1e6:.4f}",
+                             f"{acc['cond'] * 1e3:.3f}", f"{kern / max(acc['cond'], 1e-12) / 1e9:.2f}"])
             pr(md_table(["work (step_flops)", "MFLOP", f"lower bound ms at {peak:.1f} GFLOP/s", "measured ms",
                          "achieved GFLOP/s"], frows))
             pr(f"\nThe step does {fl['total'] / 1e6:.2f} MFLOP; at the measured peak that is ≥ "

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
-from .kernels import rollout, rollout_poly, rollout_sensitivity_blocks, rollout_sensitivity_poly
+from .condense import block_maps_expm, block_maps_poly, condense
+from .kernels import rollout, rollout_poly
 from .qp import DenseQp
 from .zoh_poly import zoh_polynomial
 
@@ -195,8 +196,8 @@ class Lmpc:
         self.lam = np.ascontiguousarray(model.Lambda)
         self.B = np.ascontiguousarray(model.B)
         self.b = np.ascontiguousarray(model.b)
-        self.P = clf.P
-        self.out = model.C if config.state_cost == "x" else None
+        self.P = np.ascontiguousarray(clf.P)
+        self.out = np.ascontiguousarray(model.C) if config.state_cost == "x" else None
         self.r_diag = np.repeat(self.sizes.astype(float), self.m) * config.r
         self.x_l = np.concatenate([np.tile(self.u_min, self.nb), [0.0]])
         self.x_u = np.concatenate([np.tile(self.u_max, self.nb), [np.inf]])
@@ -204,20 +205,52 @@ class Lmpc:
         # and its derivative cost a few matrix additions per move block; else (or out of range) the exponential
         self.zoh = zoh_polynomial(self.lam, self.B, self.b, model.dt,
                                   float(max(np.max(np.abs(self.u_min)), np.max(np.abs(self.u_max)))))
-        self._cost_diag = np.diag(2 * model.dt * self.r_diag) + 1e-10 * np.eye(self.nu)
+        self._buffers()
         self.reset()
-        # compile (or load from numba's cache) now, not inside the first control step: the sensitivities, and the
+        # compile (or load from numba's cache) now, not inside the first control step: the condensing, and the
         # rollout of a logged plan or a line search
-        self._sensitivity(np.zeros(self.k), np.zeros((self.nb, self.m)))
+        self._maps(np.zeros((self.nb, self.m)))
+        self._condense(np.zeros(self.k), np.zeros(self.nu), True)
+        self._condense(np.zeros(self.k), np.zeros(self.nu), False)
         self._rollout(np.zeros(self.k), np.zeros((self.nb, self.m)))
+
+    def _buffers(self) -> None:
+        """The arrays the compiled condensing writes into, allocated once (kexp.control.condense)."""
+        k, n, nu, Np, m = self.k, self.k + 1, self.nu, self.cfg.horizon, self.m
+        starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
+        self._starts = starts
+        self._first = np.repeat(starts, m)                 # the step at which each column's block starts
+        self._shift = np.append(self.bos[1:], self.bos[-1])  # the plan one step on: the next step's warm start
+        self._E = np.zeros((self.nb, n, n))
+        self._L = np.zeros((self.nb, m, n, n))
+        self._Z = np.zeros((Np + 1, k))
+        self._S = np.zeros((nu, Np + 1, k))                # zero before each column's block: never written
+        self._C = self.out if self.out is not None else np.zeros((1, k))
+        self._Y = np.zeros((nu + 1, Np + 1, self._C.shape[0]) if self.out is not None else (1, 1, 1))
+        self._HS = np.zeros((nu, nu))
+        self._q = np.zeros(nu)
+        self._rows = np.zeros((Np, nu))
+        self._Vbar = np.zeros(Np)
+        self._h_rows = np.zeros(Np)
+        self._zz = np.zeros(n)
+        self._rdiag = 2 * self.model.dt * self.r_diag + 1e-10
+        self._scale = 2 * self.model.dt * self.cfg.w
+        # the QP's arrays: H is symmetric, so its C-ordered buffer is also the column-major one PIQP reads (H.T)
+        self._H = np.zeros((nu + 1, nu + 1))
+        self._H[-1, -1] = 2 * self.cfg.slack_weight
+        self._g = np.zeros(nu + 1)
+        self._g[-1] = self.cfg.slack_weight
+        self._G_rows = np.zeros((Np, nu + 1), order="F")   # all Np (21e) rows, filled when the full QP is solved
+        self._G_rows[:, -1] = -1.0
+        self._G_one = np.zeros((1, nu + 1), order="F")     # the one row: (21f), the most binding (21e), or 0 ≤ 1
+        self._h_one = np.ones(1)
 
     def reset(self) -> None:
         self._useq = np.zeros((self.cfg.horizon, self.m))  # per-step guess
         self._count = 0
 
     def _blocks_from_steps(self, useq: np.ndarray) -> np.ndarray:
-        starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]])
-        return np.ascontiguousarray(useq[starts])
+        return useq[self._starts]                 # fancy indexing: a new C-contiguous (nb, m) array
 
     # -- cost and constraints -------------------------------------------------------------------------------
     def _exact_cost(self, Z, U, s) -> float:
@@ -227,12 +260,20 @@ class Lmpc:
         cost += cfg.terminal * float(Z[-1] @ self.P @ Z[-1])
         return cost + cfg.slack_weight * (s + s * s)
 
-    def _sensitivity(self, z0, Ubar):
-        """Z (Np+1, k) and Sb (nu, Np+1, k), Sb[c, j] = ∂z_j/∂vec(U)_c: the exact rollout and its sensitivities."""
+    def _maps(self, Ubar) -> None:
+        """E_b and L_b = ∂E_b/∂u of every move block at the guess Ubar (nb, m), into the buffers."""
         if self.zoh is not None:
-            return rollout_sensitivity_poly(self.zoh.coef, self.zoh.rho, self.lam, self.B, self.b, self.model.dt,
-                                            z0, Ubar, self.bos)
-        return rollout_sensitivity_blocks(self.lam, self.B, self.b, self.model.dt, z0, Ubar, self.bos)
+            block_maps_poly(self.zoh.coef, self.zoh.norms, self.zoh.rho, self.lam, self.B, self.b, self.model.dt,
+                            Ubar, self._E, self._L)
+        else:
+            block_maps_expm(self.lam, self.B, self.b, self.model.dt, Ubar, self._E, self._L)
+
+    def _condense(self, z0, ub, want_rows: bool) -> None:
+        """The rollout, sensitivities, H, g and (with ``want_rows``) the (21e) rows at the guess ub = vec(U), from the
+        block maps of :meth:`_maps`, into the buffers (:func:`kexp.control.condense.condense`)."""
+        condense(self._E, self._L, self.bos, self._first, z0, ub, self._C, self.out is not None, self._scale,
+                 self._rdiag, self.P, self.clf.r_hat, want_rows, self._Z, self._S, self._Y, self._HS, self._q,
+                 self._H, self._g, self._rows, self._Vbar, self._h_rows, self._zz)
 
     def _rollout(self, z0, U):
         """The exact prediction Z (Np+1, k) of the plan U: from the ZOH polynomial where there is one."""
@@ -242,45 +283,52 @@ class Lmpc:
         return rollout(self.lam, self.B, self.b, self.model.dt, z0, U, self.bos)
 
     def _qp_data(self, z0, Ubar, active, rhs_21f, beta0):
-        """The condensed QP at the guess Ubar: z_j ≈ c_j + S_j·vec(U) with S_j from :meth:`_sensitivity`."""
-        cfg, dt = self.cfg, self.model.dt
-        Z, Sb = self._sensitivity(z0, Ubar)
+        """The condensed QP at the guess Ubar, z_j ≈ z̄_j + S_j·vec(U − Ubar): (H, g, G, h_u) with one constraint
+        row.  Inside Ω_r̂ that row is the (21e) row with the least margin at the guess (:meth:`_solve` checks the
+        solution against all Np rows and solves with all of them if one is violated); else (21f), or 0 ≤ 1."""
+        cfg = self.cfg
         ub = Ubar.reshape(-1)
-        Sj = Sb[:, 1:, :]                            # (nu, Np, k), a view
-        flat_z = Sj.reshape(self.nu, -1)             # (nu, Np·k), a view
-        c = Z[1:] - (ub @ flat_z).reshape(Z.shape[0] - 1, -1)   # affine part: z_j ≈ c_j + S_j U
-        if self.out is not None:
-            flat = (Sj @ self.out.T).reshape(self.nu, -1)
-            cx = c @ self.out.T
-        else:
-            flat, cx = flat_z, c
-        H = np.empty((self.nu + 1, self.nu + 1))
-        g = np.empty(self.nu + 1)
-        H[: self.nu, : self.nu] = (2 * dt * cfg.w) * (flat @ flat.T) + self._cost_diag
-        g[: self.nu] = (2 * dt * cfg.w) * (flat @ cx.reshape(-1))
+        self._ub = ub
+        self._maps(Ubar)
+        self._condense(z0, ub, active == "21e")
+        H, g = self._H, self._g
         if cfg.terminal > 0:
-            sn = Sb[:, -1, :].T                      # (k, nu)
-            H[: self.nu, : self.nu] += 2 * cfg.terminal * sn.T @ self.P @ sn
-            g[: self.nu] += 2 * cfg.terminal * sn.T @ self.P @ (Z[-1] - sn @ ub)
-        H[: self.nu, -1] = 0.0
-        H[-1, : self.nu] = 0.0
-        H[-1, -1] = 2 * cfg.slack_weight
-        g[-1] = cfg.slack_weight
-        if active == "21e":                          # V(z_j) ≤ r̂ + s, linearised: Np rows
-            zP = Z[1:] @ self.P
-            Vbar = np.sum(zP * Z[1:], axis=1)
-            rows = np.matmul(Sj.transpose(1, 0, 2), 2 * zP[:, :, None])[:, :, 0]   # (Np, nu): 2 z̄_jᵀP S_j
-            G = np.empty((cfg.horizon, self.nu + 1))
-            G[:, : self.nu] = rows
-            G[:, -1] = -1.0
-            h_u = self.clf.r_hat - Vbar + rows @ ub
-        else:                                        # one row: (21f) on u_0, or inactive (0 ≤ 1)
-            G = np.zeros((1, self.nu + 1))
-            h_u = np.ones(1)
+            sn = self._S[:, -1, :]                   # (nu, k): ∂z_Np/∂U
+            snP = sn @ self.P
+            H[: self.nu, : self.nu] += 2 * cfg.terminal * snP @ sn.T
+            g[: self.nu] += 2 * cfg.terminal * snP @ (self._Z[-1] - ub @ sn)
+        G, h_u = self._G_one, self._h_one
+        if active == "21e":                          # V(z_j) ≤ r̂ + s, linearised
+            j = int(np.argmax(self._Vbar))
+            G[0, : self.nu] = self._rows[j]
+            G[0, -1] = -1.0
+            h_u[0] = self._h_rows[j]
+        else:                                        # (21f) on u_0 (the first block's input), or inactive (0 ≤ 1)
+            G[0, :] = 0.0
+            h_u[0] = 1.0
             if active == "21f":
-                G[0, : self.m] = beta0               # u_0 is the first block's input
+                G[0, : self.m] = beta0
                 h_u[0] = rhs_21f
-        return Z, H, g, G, h_u, c, Sj
+        return H, g, G, h_u
+
+    def _rows_violation(self, x) -> np.ndarray:
+        """rows·U − s − h of all Np linearised (21e) rows at the QP variables x = (vec U, s)."""
+        return self._rows @ x[: self.nu] - x[-1] - self._h_rows
+
+    def _solve(self, H, g, G, h_u, active):
+        """The QP with the one row of :meth:`_qp_data`; inside Ω_r̂, if its solution violates another (21e) row (by
+        more than the QP's tolerance), the QP with all Np rows.  The same solution: the one-row QP's feasible set
+        contains the full one's, so a solution of it that satisfies every row is the full QP's (strictly convex).
+        Returns the result and the QP iterations of both solves."""
+        res = self.qp_f.solve(H.T, g, G, h_u, self.x_l, self.x_u)    # H is symmetric: H.T is its column-major view
+        if not (res.success and active == "21e"):
+            return res, res.iterations
+        tol = self.cfg.qp_eps * np.maximum(1.0, np.abs(self._h_rows))
+        if np.all(self._rows_violation(res.x) <= tol):
+            return res, res.iterations
+        self._G_rows[:, : self.nu] = self._rows
+        full = self.qp_e.solve(H.T, g, self._G_rows, self._h_rows, self.x_l, self.x_u)
+        return full, res.iterations + full.iterations
 
     # -- one sampling instant ---------------------------------------------------------------------------------
     def step(self, x0: np.ndarray, z0: np.ndarray) -> ControlStep:
@@ -297,9 +345,9 @@ class Lmpc:
         res = None
         it = 0
         for it in range(1, cfg.max_iter + 1):
-            Z, H, g, G, h_u, lin_c, lin_S = self._qp_data(z0, Ubar, active, rhs_21f, beta0)
-            res = (self.qp_e if active == "21e" else self.qp_f).solve(H, g, G, h_u, self.x_l, self.x_u)
-            qp_iters += res.iterations
+            H, g, G, h_u = self._qp_data(z0, Ubar, active, rhs_21f, beta0)
+            res, iters = self._solve(H, g, G, h_u, active)
+            qp_iters += iters
             if not res.success:
                 return self._fallback(h0, res.message or res.status, region, active, t0, res.status, it, qp_iters)
             Unew = np.clip(res.x[: self.nu].reshape(self.nb, self.m), self.u_min, self.u_max)
@@ -307,7 +355,7 @@ class Lmpc:
             if cfg.max_iter > 1:
                 Unew = self._line_search(z0, Ubar, step, active, beta0, rhs_21f)
             done = np.max(np.abs(Unew - Ubar)) <= cfg.tol
-            if it == 1 and cfg.iterate_when == "binding" and not self._qp_binds(res.x, Unew, G, h_u):
+            if it == 1 and cfg.iterate_when == "binding" and not self._qp_binds(res.x, Unew, active, beta0, rhs_21f):
                 done = True   # nothing active: the real-time iteration's answer is the step's
             Ubar = np.ascontiguousarray(Unew)
             if done:
@@ -322,7 +370,8 @@ class Lmpc:
         if active == "21e":
             # slack and binding as the QP saw them: the linearised prediction at the applied plan (an exact rollout
             # here cost 0.48 ms, a quarter of the step; the plan's exact prediction is logged when requested)
-            zl = lin_c + (Ubar.reshape(-1) @ lin_S.reshape(self.nu, -1)).reshape(lin_c.shape)
+            du = Ubar.reshape(-1) - self._ub
+            zl = self._Z[1:] + np.tensordot(du, self._S[:, 1:, :], 1)
             vmax = float(np.max(self.clf.lyap.value(zl)))
             slack = max(0.0, vmax - self.clf.r_hat)
             binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
@@ -330,20 +379,23 @@ class Lmpc:
             lhs = float(beta0 @ u0)
             binds = abs(lhs - rhs_21f) <= 1e-6 * max(1.0, abs(rhs_21f))
         # warm start: shift the per-step sequence by one step
-        useq = Ubar[self.bos]
-        self._useq = np.vstack([useq[1:], useq[-1:]])
+        self._useq = Ubar[self._shift]
         return ControlStep(u=u0, status="solved", qp_status=res.status, iterations=it, qp_iterations=qp_iters,
                            solve_time=time.perf_counter() - t0, region=region, active=active, binds=bool(binds),
                            slack=slack, fallback=False, reason="", predicted=Z)
 
-    def _qp_binds(self, xsol, U, G, h_u) -> bool:
+    def _qp_binds(self, xsol, U, active, beta0, rhs_21f) -> bool:
         """Whether the QP's solution has an input bound or a (linearised) Lyapunov constraint active.  PIQP's
         interior point stops short of an active bound (measured ~4e-5 inside at eps 1e-8), hence the margins: an
         input within 0.1 % of its range from a bound, a row within 1e-4 (relative) of its right-hand side."""
         span = self.u_max - self.u_min
         if np.any(U <= self.u_min + 1e-3 * span) or np.any(U >= self.u_max - 1e-3 * span):
             return True
-        return bool(np.any(G @ xsol - h_u >= -1e-4 * np.maximum(1.0, np.abs(h_u))))
+        if active == "21e":
+            return bool(np.any(self._rows_violation(xsol) >= -1e-4 * np.maximum(1.0, np.abs(self._h_rows))))
+        if active == "21f":
+            return float(beta0 @ xsol[: self.m]) - rhs_21f >= -1e-4 * max(1.0, abs(rhs_21f))
+        return False
 
     def _line_search(self, z0, Ubar, step, active, beta0, rhs_21f):
         """Backtracking on the exact merit: cost + slack penalty of (21e) + ρ·violation of (21f) (the warm start

@@ -11,8 +11,44 @@ from dataclasses import dataclass
 
 import numpy as np
 import piqp
+from numba import njit
 
 from ..errors import ConfigError
+
+
+@njit(cache=True)
+def _all_finite(a) -> bool:
+    for x in a.flat:
+        if not np.isfinite(x):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _scan(H, g, G, h_u, x_l, x_u, old_l, old_u) -> int:
+    """One pass over the QP's data: 1–4 when H, g, G or h_u holds NaN/inf, 5 when a bound is NaN or x_l > x_u;
+    else 0 if the bounds equal (old_l, old_u) and −1 if they differ (the arrays of a 200-variable QP take
+    microseconds here, against ~40 µs for numpy's ten calls)."""
+    if not _all_finite(H):
+        return 1
+    if not _all_finite(g):
+        return 2
+    if not _all_finite(G):
+        return 3
+    if not _all_finite(h_u):
+        return 4
+    same = old_l.shape[0] == x_l.shape[0]
+    for i in range(x_l.shape[0]):
+        lo, hi = x_l[i], x_u[i]
+        if np.isnan(lo) or np.isnan(hi) or lo > hi:
+            return 5
+        if same and (lo != old_l[i] or hi != old_u[i]):
+            same = False
+    return 0 if same else -1
+
+
+_SCAN_PROBLEM = {1: "H contains NaN/inf", 2: "g contains NaN/inf", 3: "G contains NaN/inf",
+                 4: "h_u contains NaN/inf", 5: "bounds x_l > x_u or NaN"}
 
 
 @dataclass(frozen=True)
@@ -33,18 +69,17 @@ class DenseQp:
         self.eps, self.max_iter = eps, max_iter
         self._solver = None
 
-    def _check(self, H, g, G, h_u, x_l, x_u) -> str:
-        shapes = {"H": (H, (self.n, self.n)), "g": (g, (self.n,)), "G": (G, (self.n_ineq, self.n)),
-                  "h_u": (h_u, (self.n_ineq,)), "x_l": (x_l, (self.n,)), "x_u": (x_u, (self.n,))}
-        for name, (arr, shape) in shapes.items():
+    def _check(self, H, g, G, h_u, x_l, x_u) -> tuple[str, bool]:
+        """(problem, bounds unchanged): the first thing wrong with the data ('' if nothing), and whether the
+        bounds equal those PIQP holds."""
+        shapes = (("H", H, (self.n, self.n)), ("g", g, (self.n,)), ("G", G, (self.n_ineq, self.n)),
+                  ("h_u", h_u, (self.n_ineq,)), ("x_l", x_l, (self.n,)), ("x_u", x_u, (self.n,)))
+        for name, arr, shape in shapes:
             if arr.shape != shape:
-                return f"{name} has shape {arr.shape}, expected {shape}"
-        for name in ("H", "g", "G", "h_u"):
-            if not np.isfinite(shapes[name][0]).all():
-                return f"{name} contains NaN/inf"
-        if np.isnan(x_l).any() or np.isnan(x_u).any() or (x_l > x_u).any():
-            return "bounds x_l > x_u or NaN"
-        return ""
+                return f"{name} has shape {arr.shape}, expected {shape}", False
+        old_l, old_u = self._bounds if self._solver is not None else (x_l[:0], x_u[:0])
+        code = _scan(H, g, G, h_u, x_l, x_u, old_l, old_u)
+        return _SCAN_PROBLEM.get(code, ""), code == 0
 
     def solve(self, H, g, G, h_u, x_l, x_u) -> QpResult:
         H = np.asfortranarray(H, dtype=float)
@@ -53,7 +88,7 @@ class DenseQp:
         h_u = np.ascontiguousarray(h_u, dtype=float)
         x_l = np.ascontiguousarray(x_l, dtype=float)
         x_u = np.ascontiguousarray(x_u, dtype=float)
-        problem = self._check(H, g, G, h_u, x_l, x_u)
+        problem, same_bounds = self._check(H, g, G, h_u, x_l, x_u)
         if problem:
             return QpResult(np.full(self.n, np.nan), f"invalid_input: {problem}", False, 0, 0.0, problem)
         t0 = time.perf_counter()
@@ -66,7 +101,7 @@ class DenseQp:
             s.setup(H, g, None, None, G, np.full(self.n_ineq, -np.inf), h_u, x_l, x_u)
             self._solver = s
             self._bounds = (x_l.copy(), x_u.copy())
-        elif np.array_equal(x_l, self._bounds[0]) and np.array_equal(x_u, self._bounds[1]):
+        elif same_bounds:
             self._solver.update(P=H, c=g, G=G, h_u=h_u)      # h_l = −∞ and the bounds are as set up
         else:
             self._solver.update(P=H, c=g, G=G, h_u=h_u, x_l=x_l, x_u=x_u)

@@ -28,10 +28,12 @@ MEMO_SIZE = 8
 
 @dataclass(frozen=True)
 class ZohPolynomial:
-    """E(u) = Σ_d coef[d]·(u/rho)^d for |u| ≤ rho; coef (D+1, k+1, k+1)."""
+    """E(u) = Σ_d coef[d]·(u/rho)^d for |u| ≤ rho; coef (D+1, k+1, k+1); norms (D+1,) the coefficients'
+    ∞-norms (:func:`kexp.control.condense.poly_degree` cuts the series for a smaller |u| with them)."""
 
     coef: np.ndarray
     rho: float
+    norms: np.ndarray
 
     @property
     def degree(self) -> int:
@@ -92,4 +94,4 @@ def _coefficients(lam, B, b, dt, rho):
     coef = np.ascontiguousarray(top.reshape(n, D + 1, n).transpose(1, 0, 2))
     coef[:, k, :] = 0.0          # the constant row [0 … 0 1] of E is exact
     coef[0, k, k] = 1.0
-    return ZohPolynomial(coef, float(rho))
+    return ZohPolynomial(coef, float(rho), np.abs(coef).sum(axis=2).max(axis=1))

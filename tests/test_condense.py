@@ -1,0 +1,180 @@
+"""The compiled condensing (kexp.control.condense) against the per-step reference kernel and dense numpy products,
+the per-block cut of the ZOH polynomial against scipy's exponential, and the LMPC's one-row (21e) QP against the
+QP with all Np rows."""
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+from kexp.clf import ClfConfig, synthesize_clf
+from kexp.control import Lmpc, LmpcConfig, make_law
+from kexp.control.blocking import block_of_step, block_sizes
+from kexp.control.condense import block_maps_expm, block_maps_poly, condense, poly_degree
+from kexp.control.kernels import rollout_sensitivity
+from kexp.control.qp import DenseQp
+from kexp.control.zoh_poly import zoh_polynomial
+from kexp.data import Circle, DataConfig, collect
+from kexp.dictionary import Monomials
+from kexp.identify import identify
+from kexp.systems import VanDerPol
+
+
+@pytest.fixture(scope="module")
+def vdp():
+    s = VanDerPol()
+    model = identify(s, collect(s, Circle(100, 2.5), DataConfig(T=10.0)), Monomials(2, 5))
+    clf = synthesize_clf(model, ClfConfig())
+    return s, model, clf, make_law("sontag", clf.lyap, -5.0, 5.0)
+
+
+def _run_condense(lam, B, b, dt, z0, U, bos, C, use_c, P, zp=None):
+    k, m, nb, Np = lam.shape[0], B.shape[0], U.shape[0], len(bos)
+    n, nu = k + 1, U.size
+    E, L = np.zeros((nb, n, n)), np.zeros((nb, m, n, n))
+    if zp is not None:
+        block_maps_poly(zp.coef, zp.norms, zp.rho, lam, B, b, dt, U, E, L)
+    else:
+        block_maps_expm(lam, B, b, dt, U, E, L)
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(bos)) + 1]).astype(np.int64)
+    first = np.repeat(starts, m)
+    out = dict(Z=np.zeros((Np + 1, k)), S=np.zeros((nu, Np + 1, k)), HS=np.zeros((nu, nu)), q=np.zeros(nu),
+               H=np.zeros((nu + 1, nu + 1)), g=np.zeros(nu + 1), rows=np.zeros((Np, nu)), Vbar=np.zeros(Np),
+               h_rows=np.zeros(Np))
+    Y = np.zeros((nu + 1, Np + 1, C.shape[0]))
+    rdiag = np.linspace(0.1, 0.3, nu)
+    condense(E, L, bos, first, z0, U.reshape(-1), C, use_c, 0.02, rdiag, P, 1.5, True, out["Z"], out["S"], Y,
+             out["HS"], out["q"], out["H"], out["g"], out["rows"], out["Vbar"], out["h_rows"], np.zeros(n))
+    return out, rdiag
+
+
+@pytest.mark.parametrize("m", [1, 2])
+@pytest.mark.parametrize("use_c", [False, True])
+def test_condense_equals_the_reference_products(vdp, m, use_c):
+    """Rollout, sensitivities, H, g and the (21e) rows from the one-pass kernel equal the per-step Van Loan
+    reference kernel with the dense products written out in numpy (H = 2Δw·Σ Y_jᵀY_j + diag, g = 2Δw·Σ Y_jᵀ(y_j −
+    Y_j ub), rows 2 z_jᵀP S_j, h = r̂ − V(z_j) + rows·ub), relative to each array's size: measured ≤ 1e-14; asserted
+    1e-12.  One input from the cut ZOH polynomial, two from the exponential; a cost on z and on x = Cz."""
+    _, model, clf, _ = vdp
+    rng = np.random.default_rng(11)
+    lam = np.ascontiguousarray(model.Lambda)
+    B = np.concatenate([model.B] + [rng.normal(size=model.B.shape) * np.abs(model.B).max() for _ in range(m - 1)])
+    b = np.concatenate([model.b] + [rng.normal(size=model.b.shape) * np.abs(model.b).max() for _ in range(m - 1)])
+    B, b = np.ascontiguousarray(B), np.ascontiguousarray(b)
+    C = np.ascontiguousarray(model.C)
+    P = np.ascontiguousarray(clf.P)
+    zp = zoh_polynomial(lam, B, b, model.dt, 5.0) if m == 1 else None
+    bos = block_of_step(block_sizes(100, 5, 20))
+    for scale in (1.0, 0.05):
+        U = rng.uniform(-5, 5, (20, m)) * scale
+        z0 = model.lift(rng.uniform(-1.5, 1.5, 2))
+        out, rdiag = _run_condense(lam, B, b, model.dt, z0, U, bos, C if use_c else np.zeros((1, model.k)), use_c,
+                                   P, zp)
+        Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)      # S0 (Np+1, k, nu)
+        ub = U.reshape(-1)
+        Ys = S0[1:] if not use_c else np.einsum("pk,jkc->jpc", C, S0[1:])
+        ys = Z0[1:] if not use_c else Z0[1:] @ C.T
+        HS = np.einsum("jpc,jpd->cd", Ys, Ys)
+        H = 0.02 * HS + np.diag(rdiag)
+        g = 0.02 * np.einsum("jpc,jp->c", Ys, ys - np.einsum("jpc,c->jp", Ys, ub))
+        rows = 2 * np.einsum("jk,jkc->jc", Z0[1:] @ P, S0[1:])
+        V = np.sum((Z0[1:] @ P) * Z0[1:], 1)
+
+        def rel(a, ref):
+            return np.max(np.abs(a - ref)) / np.max(np.abs(ref))
+
+        assert rel(out["Z"], Z0) <= 1e-12
+        assert rel(out["S"].transpose(1, 2, 0), S0) <= 1e-12
+        assert rel(out["H"][:-1, :-1], H) <= 1e-12
+        assert rel(out["g"][:-1], g) <= 1e-12
+        assert rel(out["rows"], rows) <= 1e-12
+        assert rel(out["Vbar"], V) <= 1e-12
+        assert rel(out["h_rows"], 1.5 - V + rows @ ub) <= 1e-12
+        first = np.repeat(np.concatenate([[0], np.flatnonzero(np.diff(bos)) + 1]), m)
+        for c in range(ub.size):                   # causality: nothing before a column's block starts
+            assert not out["S"][c, : first[c] + 1].any()
+
+
+def test_polynomial_cut_per_block_is_the_exponential(vdp):
+    """block_maps_poly cuts the ZOH polynomial where a block's |u| lets it (the dropped terms below 2⁻⁵⁴ of the
+    map's size): E and dE/du still equal scipy's exponential and the Van Loan derivative to rounding (asserted
+    1e-13 relative) at every input size.  The coefficients' norms fall much faster than the a-priori bound that
+    fixes the polynomial's degree (19 here): measured 7 terms at |u| = ρ, 5 at |u| = 0.02, 1 at u = 0."""
+    _, model, _, _ = vdp
+    lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
+    zp = zoh_polynomial(lam, B, b, model.dt, 5.0)
+    k, n = model.k, model.k + 1
+    X = np.zeros((n, n))
+    X[:k, :k] = model.Lambda * model.dt
+    Yb = np.zeros((n, n))
+    Yb[:k, :k] = model.B[0] * model.dt
+    Yb[:k, k] = model.b[0] * model.dt
+    us = np.array([0.0, 1e-4, 0.02, -0.3, 1.0, -2.5, 5.0])
+    E, L = np.zeros((len(us), n, n)), np.zeros((len(us), 1, n, n))
+    block_maps_poly(zp.coef, zp.norms, zp.rho, lam, B, b, model.dt, us[:, None], E, L)
+    degrees = [poly_degree(zp.norms, u / zp.rho, zp.degree) for u in us]
+    for i, u in enumerate(us):
+        big = sla.expm(np.block([[X + u * Yb, Yb], [np.zeros((n, n)), X + u * Yb]]))
+        ref_e, ref_l = big[:n, :n], big[:n, n:]
+        assert np.max(np.abs(E[i] - ref_e)) <= 1e-13 * np.max(np.abs(ref_e))
+        assert np.max(np.abs(L[i, 0] - ref_l)) <= 1e-13 * np.max(np.abs(ref_l))
+    assert degrees[0] == 1 and degrees[-1] <= zp.degree // 2
+    assert np.all(np.diff(np.array(degrees)[np.argsort(np.abs(us))]) >= 0)     # fewer terms for smaller |u|
+
+
+def _full_qp_plan(ctrl, z0):
+    """The step's QP with all Np (21e) rows, condensed in numpy from the reference kernel and solved by a fresh
+    PIQP problem: the plan (vec U) it returns."""
+    model, cfg = ctrl.model, ctrl.cfg
+    Ub = ctrl._blocks_from_steps(ctrl._useq)
+    ub = Ub.reshape(-1)
+    Z0, S0 = rollout_sensitivity(ctrl.lam, ctrl.B, ctrl.b, model.dt, z0, Ub, ctrl.bos)
+    Sj = S0[1:]
+    nu = ctrl.nu
+    H = np.zeros((nu + 1, nu + 1))
+    H[:nu, :nu] = 2 * model.dt * cfg.w * np.einsum("jkc,jkd->cd", Sj, Sj) + np.diag(2 * model.dt * ctrl.r_diag)
+    H[-1, -1] = 2 * cfg.slack_weight
+    c_lin = Z0[1:] - np.einsum("jkc,c->jk", Sj, ub)
+    g = np.concatenate([2 * model.dt * cfg.w * np.einsum("jkc,jk->c", Sj, c_lin), [cfg.slack_weight]])
+    zP = Z0[1:] @ ctrl.P
+    rows = 2 * np.einsum("jk,jkc->jc", zP, Sj)
+    G = np.hstack([rows, -np.ones((len(rows), 1))])
+    h = ctrl.clf.r_hat - np.sum(zP * Z0[1:], 1) + rows @ ub
+    res = DenseQp(nu + 1, len(rows)).solve(H, g, G, h, ctrl.x_l, ctrl.x_u)
+    assert res.success
+    return res.x[:nu], bool(np.any(G @ res.x - h >= -1e-4 * np.maximum(1, np.abs(h))))
+
+
+def test_one_row_qp_is_the_full_qp(vdp):
+    """Inside Ω_r̂ the LMPC solves a QP with the one (21e) row of least margin and checks its solution against all
+    Np rows, solving with all of them only if one is violated.  Its first input equals that of the QP with all Np
+    rows solved directly (to the QP's tolerance): with the working r̂ (no row near binding, the one-row QP
+    suffices) and with r̂ shrunk to V(z0) at a state where every admissible input (u ∈ [4.99, 5]) raises V, so rows
+    bind (the full QP is solved)."""
+    _, model, clf, h = vdp
+    rng = np.random.default_rng(2)
+    cand = rng.uniform(-0.2, 0.2, (400, 2))
+    x0s = cand[clf.lyap.value(model.lift(cand)) < 0.9 * clf.r_hat][:4]
+    assert len(x0s) == 4
+    for x0 in x0s:
+        z0 = model.lift(x0)
+        ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0)
+        ref, binding = _full_qp_plan(ctrl, z0)
+        st = ctrl.step(x0, z0)
+        assert st.active == "21e" and not binding
+        assert ctrl.qp_e._solver is None           # the one-row QP sufficed
+        assert abs(st.u[0] - ref[0]) <= 1e-6
+    # r̂ = V(z0) at a state whose admissible inputs all raise V: rows bind, the one-row solution violates others
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1, 1, 21)), -1).reshape(-1, 2)
+    grid = grid[np.linalg.norm(grid, axis=1) > 0]
+    zs = model.lift(grid)
+    a, beta = clf.lyap.lie(zs)
+    j = int(np.argmax((a + 4.99 * beta[:, 0]) / clf.lyap.value(zs)))
+    V0 = float(clf.lyap.value(zs[j]))
+    tight = dataclasses.replace(clf, certificate=dataclasses.replace(clf.certificate, r=10 * V0, r_hat=V0))
+    ctrl = Lmpc(model, tight, h, LmpcConfig(), 4.99, 5.0)
+    ref, binding = _full_qp_plan(ctrl, zs[j])
+    st = ctrl.step(grid[j], zs[j])
+    assert st.active == "21e" and binding
+    assert ctrl.qp_e._solver is not None           # the full QP was needed and solved
+    assert abs(st.u[0] - ref[0]) <= 1e-6
