@@ -67,7 +67,7 @@ class Sontag:
         if not nb2 > self.eps * max(1.0, abs(a)):
             return np.clip(np.zeros_like(beta), self.u_min, self.u_max)
         u = (-(a + np.sqrt(a * a + nb2 * nb2)) / nb2) * beta
-        return np.clip(np.where(np.isfinite(u), u, 0.0), self.u_min, self.u_max)
+        return np.minimum(np.maximum(np.where(np.isfinite(u), u, 0.0), self.u_min), self.u_max)   # = np.clip
 
 
 @dataclass(frozen=True, eq=False)

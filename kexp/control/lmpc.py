@@ -350,7 +350,8 @@ class Lmpc:
             qp_iters += iters
             if not res.success:
                 return self._fallback(h0, res.message or res.status, region, active, t0, res.status, it, qp_iters)
-            Unew = np.clip(res.x[: self.nu].reshape(self.nb, self.m), self.u_min, self.u_max)
+            # np.minimum(np.maximum(·)) is np.clip's result (NaN included) at half its call cost on small arrays
+            Unew = np.minimum(np.maximum(res.x[: self.nu].reshape(self.nb, self.m), self.u_min), self.u_max)
             step = Unew - Ubar
             if cfg.max_iter > 1:
                 Unew = self._line_search(z0, Ubar, step, active, beta0, rhs_21f)
