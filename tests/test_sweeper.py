@@ -46,3 +46,50 @@ def test_a_bad_group_choice_in_a_later_job_stops_the_sweep_before_any_job(tmp_pa
     assert proc.returncode != 0
     assert "nosuch" in proc.stderr
     assert not list(sweep.glob("*/summary.json"))
+
+
+def _master(overrides):
+    from hydra._internal.utils import create_config_search_path
+    from hydra.core.utils import JobRuntime
+    from hydra.types import RunMode
+
+    from kexp.app.main import CONF_DIR
+    from kexp.app.sweeper import StructureCachingConfigLoader
+    JobRuntime.instance().set("name", "kexp")
+    loader = StructureCachingConfigLoader(config_search_path=create_config_search_path(CONF_DIR))
+    return loader, loader.load_configuration("config", overrides=overrides, run_mode=RunMode.MULTIRUN)
+
+
+def test_a_worker_composes_once_per_structure_and_equals_hydra():
+    """compose_job: the second and later jobs of a structure come from a copy of the first with their own values
+    and override lists applied, and equal Hydra's own composition of them key for key (values of dotted keys, in
+    lists and nested, of the app and of Hydra; a group choice; the override lists and override_dirname)."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from omegaconf import OmegaConf
+
+    from kexp.app import sweeper
+    loader, master = _master(["hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "hydra.sweep.dir=/tmp/kexp-s"])
+    sweeper._COMPOSED.clear()
+    calls = []
+    real = ConfigLoaderImpl.load_sweep_config
+
+    def counting(self, m, o):
+        calls.append(list(o))
+        return real(self, m, o)
+
+    ConfigLoaderImpl.load_sweep_config = counting
+    try:
+        jobs = [["+experiment=vanderpol", f"sim.x0=[{a},{b}]", f"controller.lmpc.horizon={h}", f"sim.T={t}"]
+                for a, b, h, t in ((0.5, -0.25, 20, 1.0), (-0.75, 0.125, 35, 2.5), (1.0, 0.0, 20, 4.0))]
+        jobs += [["+experiment=pendulum", "controller=lqr", "sim.x0=[0.3,0.1]"],
+                 ["+experiment=pendulum", "controller=lqr", "sim.x0=[-0.3,0.2]"]]
+        got = [sweeper.compose_job(loader, master, j) for j in jobs]
+        assert calls == [jobs[0], jobs[3]]               # Hydra composed once per structure
+        for job, cfg in zip(jobs, got):
+            ref = real(loader, master, job)
+            assert OmegaConf.to_container(cfg, resolve=False) == OmegaConf.to_container(ref, resolve=False)
+        assert list(got[1].sim.x0) == [-0.75, 0.125] and got[1].controller.lmpc.horizon == 35
+        assert got[4].hydra.job.override_dirname == "+experiment=pendulum,controller=lqr,sim.x0=[-0.3,0.2]"
+    finally:
+        ConfigLoaderImpl.load_sweep_config = real
+        sweeper._COMPOSED.clear()

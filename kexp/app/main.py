@@ -461,8 +461,9 @@ def main() -> None:
         print(f"kexp {__version__}")
         return
     _precheck(sys.argv[1:])
-    from .sweeper import install
+    from .sweeper import install, install_loader
     install()   # a sweep's batch check composes one job per structure, not every job (kexp/app/sweeper.py)
+    install_loader()   # and each worker composes once per structure too
     _hydra_main()
 
 

@@ -110,6 +110,6 @@ class DenseQp:
         dt = time.perf_counter() - t0
         res = self._solver.result
         x = np.array(res.x, dtype=float)
-        ok = status == piqp.PIQP_SOLVED and np.all(np.isfinite(x))
+        ok = status == piqp.PIQP_SOLVED and bool(np.isfinite(x).all())
         name = "solved" if ok else str(status).split(".")[-1]
         return QpResult(x, name, bool(ok), int(res.info.iter), dt, "" if ok else f"PIQP: {name}")
