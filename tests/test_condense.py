@@ -41,10 +41,12 @@ def _run_condense(lam, B, b, dt, z0, U, bos, C, use_c, P, zp=None):
     out = dict(Z=np.zeros((Np + 1, k)), S=np.zeros((nu, Np + 1, k)), HS=np.zeros((nu, nu)), q=np.zeros(nu),
                H=np.zeros((nu + 1, nu + 1)), g=np.zeros(nu + 1), rows=np.zeros((Np, nu)), Vbar=np.zeros(Np),
                h_rows=np.zeros(Np))
+    terminal = 0.7
     Y = np.zeros((nu + 1, Np + 1, C.shape[0]))
     rdiag = np.linspace(0.1, 0.3, nu)
-    condense(E, L, bos, first, z0, U.reshape(-1), C, use_c, 0.02, rdiag, P, 1.5, True, out["Z"], out["S"], Y,
-             out["HS"], out["q"], out["H"], out["g"], out["rows"], out["Vbar"], out["h_rows"], np.zeros(n))
+    condense(E, L, bos, first, z0, U.reshape(-1), C, use_c, 0.02, rdiag, P, terminal, 1.5, True, out["Z"],
+             out["S"], Y, out["HS"], out["q"], out["H"], out["g"], out["rows"], out["Vbar"], out["h_rows"],
+             np.zeros(n), np.zeros((nu, k)))
     return out, rdiag
 
 
@@ -53,8 +55,8 @@ def _run_condense(lam, B, b, dt, z0, U, bos, C, use_c, P, zp=None):
 def test_condense_equals_the_reference_products(vdp, m, use_c):
     """Rollout, sensitivities, H, g and the (21e) rows from the one-pass kernel equal the per-step Van Loan
     reference kernel with the dense products written out in numpy (H = 2Δw·Σ Y_jᵀY_j + diag, g = 2Δw·Σ Y_jᵀ(y_j −
-    Y_j ub), rows 2 z_jᵀP S_j, h = r̂ − V(z_j) + rows·ub), relative to each array's size: measured ≤ 1e-14; asserted
-    1e-12.  One input from the cut ZOH polynomial, two from the exponential; a cost on z and on x = Cz."""
+    Y_j ub), with a terminal cost w_T·V(z_Np); rows 2 z_jᵀP S_j, h = r̂ − V(z_j) + rows·ub), relative to each
+    array's size: measured ≤ 1e-14; asserted 1e-12.  One input from the cut ZOH polynomial, two from the exponential; a cost on z and on x = Cz."""
     _, model, clf, _ = vdp
     rng = np.random.default_rng(11)
     lam = np.ascontiguousarray(model.Lambda)
@@ -75,8 +77,10 @@ def test_condense_equals_the_reference_products(vdp, m, use_c):
         Ys = S0[1:] if not use_c else np.einsum("pk,jkc->jpc", C, S0[1:])
         ys = Z0[1:] if not use_c else Z0[1:] @ C.T
         HS = np.einsum("jpc,jpd->cd", Ys, Ys)
-        H = 0.02 * HS + np.diag(rdiag)
-        g = 0.02 * np.einsum("jpc,jp->c", Ys, ys - np.einsum("jpc,c->jp", Ys, ub))
+        sn = S0[-1]                               # (k, nu): the terminal cost 0.7·V(z_Np)
+        H = 0.02 * HS + np.diag(rdiag) + 1.4 * sn.T @ P @ sn
+        g = 0.02 * np.einsum("jpc,jp->c", Ys, ys - np.einsum("jpc,c->jp", Ys, ub)) + 1.4 * sn.T @ P @ (Z0[-1]
+                                                                                                       - sn @ ub)
         rows = 2 * np.einsum("jk,jkc->jc", Z0[1:] @ P, S0[1:])
         V = np.sum((Z0[1:] @ P) * Z0[1:], 1)
 

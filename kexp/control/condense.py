@@ -209,18 +209,19 @@ def _propagate(Eb, S, j, nc, k):
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def condense(E, L, block_of_step, first_step, z0, ub, C, use_c, scale, rdiag, P, r_hat, want_rows,
-             Z, S, Y, HS, q, H, g, rows, Vbar, h_rows, zz):
+def condense(E, L, block_of_step, first_step, z0, ub, C, use_c, scale, rdiag, P, terminal, r_hat, want_rows,
+             Z, S, Y, HS, q, H, g, rows, Vbar, h_rows, zz, PS):
     """One pass over the horizon (module docstring) at the guess ``ub`` = vec(U) (nu,).  Inputs: the block maps
     E (nb, n, n) and L (nb, m, n, n) at ub; block_of_step (Np,); first_step (nu,), the step at which column c's
     block starts; z0 (k,); the output map C (p, k), used when ``use_c`` (else y = z); the cost's ``scale`` (2Δw)
     and input diagonal ``rdiag`` (nu,); P (k, k) and r̂, used when ``want_rows``.  Written in place: Z (Np+1, k),
     the rollout; S (nu, Np+1, k), S[c, j] = ∂z_j/∂vec(U)_c for j > first_step[c] (the entries before are never
     written, and read as zeros: allocate S zeroed); HS (nu, nu) = Σ_j Y_jᵀY_j and q (nu,) = Σ_j Y_jᵀy_j over j = 1..Np; the QP's
-    H[:nu, :nu] = scale·HS + diag(rdiag) and g[:nu] = scale·(q − HS·ub) (the cost of y_j ≈ y_j(ub) + Y_j(U − ub));
+    H[:nu, :nu] = scale·HS + diag(rdiag) and g[:nu] = scale·(q − HS·ub) (the cost of y_j ≈ y_j(ub) + Y_j(U − ub)),
+    plus, when ``terminal`` w_T > 0, the terminal cost w_T·V(z_Np): 2w_T S_Npᵀ P S_Np and 2w_T S_Npᵀ P (z_Np − S_Np ub);
     with ``want_rows``, rows (Np, nu), row j−1 = 2 z_jᵀP S_j, Vbar (Np,) = z_jᵀP z_j and h_rows (Np,) =
     r̂ − Vbar + rows·ub (the linearised (21e): rows·U − s ≤ h_rows).  Work buffers: Y (nu + 1, Np+1, p) when
-    ``use_c`` (C S per column, and C Z last), zz (k+1,)."""
+    ``use_c`` (C S per column, and C Z last), zz (k+1,), PS (nu, k)."""
     k = Z.shape[1]
     m = L.shape[1]
     nu = S.shape[0]
@@ -283,6 +284,23 @@ def condense(E, L, block_of_step, first_step, z0, ub, C, use_c, scale, rdiag, P,
             Hc[d] = scale * hs[d]
         Hc[c] += rdiag[c]
         g[c] = scale * (q[c] - _dot(hs, ub))
+    if terminal > 0.0:                            # w_T V(z_Np), z_Np ≈ z̄_Np + S_Np (U − ub)
+        e = zz[:k]
+        e[:] = Z[Np]
+        for d in range(nu):
+            ud = ub[d]
+            sd = S[d, Np]
+            for r in range(k):
+                e[r] -= ud * sd[r]
+        for c in range(nu):
+            _matvec_into(P, S[c, Np], PS[c], k)
+        w2 = 2.0 * terminal
+        for c in range(nu):
+            pc = PS[c]
+            g[c] += w2 * _dot(pc, e)
+            Hc = H[c]
+            for d in range(nu):
+                Hc[d] += w2 * _dot(pc, S[d, Np])
     if want_rows:                                 # (21e): 2 z_jᵀP S_j and V(z_j), j = 1..Np
         pz = zz[:k]
         for j in range(Np):

@@ -233,6 +233,7 @@ class Lmpc:
         self._Vbar = np.zeros(Np)
         self._h_rows = np.zeros(Np)
         self._zz = np.zeros(n)
+        self._PS = np.zeros((nu, k))
         self._rdiag = 2 * self.model.dt * self.r_diag + 1e-10
         self._scale = 2 * self.model.dt * self.cfg.w
         # the QP's arrays: H is symmetric, so its C-ordered buffer is also the column-major one PIQP reads (H.T)
@@ -272,8 +273,8 @@ class Lmpc:
         """The rollout, sensitivities, H, g and (with ``want_rows``) the (21e) rows at the guess ub = vec(U), from the
         block maps of :meth:`_maps`, into the buffers (:func:`kexp.control.condense.condense`)."""
         condense(self._E, self._L, self.bos, self._first, z0, ub, self._C, self.out is not None, self._scale,
-                 self._rdiag, self.P, self.clf.r_hat, want_rows, self._Z, self._S, self._Y, self._HS, self._q,
-                 self._H, self._g, self._rows, self._Vbar, self._h_rows, self._zz)
+                 self._rdiag, self.P, float(self.cfg.terminal), self.clf.r_hat, want_rows, self._Z, self._S, self._Y,
+                 self._HS, self._q, self._H, self._g, self._rows, self._Vbar, self._h_rows, self._zz, self._PS)
 
     def _rollout(self, z0, U):
         """The exact prediction Z (Np+1, k) of the plan U: from the ZOH polynomial where there is one."""
@@ -283,7 +284,8 @@ class Lmpc:
         return rollout(self.lam, self.B, self.b, self.model.dt, z0, U, self.bos)
 
     def _qp_data(self, z0, Ubar, active, rhs_21f, beta0):
-        """The condensed QP at the guess Ubar, z_j ≈ z̄_j + S_j·vec(U − Ubar): (H, g, G, h_u) with one constraint
+        """The condensed QP at the guess Ubar, z_j ≈ z̄_j + S_j·vec(U − Ubar) (cost and terminal cost from the
+        compiled pass, :meth:`_condense`): (H, g, G, h_u) with one constraint
         row.  Inside Ω_r̂ that row is the (21e) row with the least margin at the guess (:meth:`_solve` checks the
         solution against all Np rows and solves with all of them if one is violated); else (21f), or 0 ≤ 1."""
         cfg = self.cfg
@@ -292,11 +294,6 @@ class Lmpc:
         self._maps(Ubar)
         self._condense(z0, ub, active == "21e")
         H, g = self._H, self._g
-        if cfg.terminal > 0:
-            sn = self._S[:, -1, :]                   # (nu, k): ∂z_Np/∂U
-            snP = sn @ self.P
-            H[: self.nu, : self.nu] += 2 * cfg.terminal * snP @ sn.T
-            g[: self.nu] += 2 * cfg.terminal * snP @ (self._Z[-1] - ub @ sn)
         G, h_u = self._G_one, self._h_one
         if active == "21e":                          # V(z_j) ≤ r̂ + s, linearised
             j = int(np.argmax(self._Vbar))
