@@ -10,7 +10,8 @@ import scipy.linalg as sla
 from kexp.clf import ClfConfig, synthesize_clf
 from kexp.control import Lmpc, LmpcConfig, make_law
 from kexp.control.blocking import block_of_step, block_sizes
-from kexp.control.condense import block_maps_expm, block_maps_poly, condense, poly_degree
+from kexp.control.condense import (block_maps_expm, block_maps_poly, condense, linearised_vmax, poly_degree,
+                                   rows_hold)
 from kexp.control.kernels import rollout_sensitivity
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import zoh_polynomial
@@ -182,3 +183,27 @@ def test_one_row_qp_is_the_full_qp(vdp):
     assert st.active == "21e" and binding
     assert ctrl.qp_e._solver is not None           # the full QP was needed and solved
     assert abs(st.u[0] - ref[0]) <= 1e-6
+
+
+def test_row_check_and_linearised_vmax_are_the_numpy_formulas(vdp):
+    """rows_hold is all(rows·U − s − h ≤ tol·max(1, |h|)); linearised_vmax is max_j V(z̄_j + S_j du), j ≥ 1, as
+    lyap.value computes V (to 1e-12 relative)."""
+    _, model, clf, _ = vdp
+    rng = np.random.default_rng(4)
+    rows, h = rng.normal(size=(30, 6)), rng.normal(size=30)
+    for _ in range(20):
+        x = rng.normal(size=7)
+        viol = rows @ x[:6] - x[6] - h
+        tol = float(rng.choice([0.0, 1e-8, 1.0]))
+        assert rows_hold(rows, h, x, tol) == bool(np.all(viol <= tol * np.maximum(1, np.abs(h))))
+    lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
+    bos = block_of_step(block_sizes(40, 5, 10))
+    U = rng.uniform(-2, 2, (10, 1))
+    z0 = model.lift(np.array([0.3, -0.4]))
+    Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)
+    first = np.concatenate([[0], np.flatnonzero(np.diff(bos)) + 1]).astype(np.int64)
+    S = np.ascontiguousarray(S0.transpose(2, 0, 1))
+    du = rng.normal(size=10) * 0.1
+    ref = float(np.max(clf.lyap.value(Z0[1:] + np.einsum("jkc,c->jk", S0[1:], du))))
+    got = linearised_vmax(Z0, S, du, np.ascontiguousarray(clf.P), first, np.zeros(model.k), np.zeros(model.k))
+    assert abs(got - ref) <= 1e-12 * ref

@@ -314,3 +314,38 @@ def condense(E, L, block_of_step, first_step, z0, ub, C, use_c, scale, rdiag, P,
                 else:
                     row[c] = 0.0
             h_rows[j] = r_hat - Vbar[j] + _dot(row, ub)
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def rows_hold(rows, h_rows, x, rel_tol):
+    """Whether the linearised (21e) rows hold at the QP variables x = (vec U, s): rows[j]·U − s − h_rows[j] ≤
+    rel_tol·max(1, |h_rows[j]|) for every j."""
+    nu = rows.shape[1]
+    u = x[:nu]
+    s = x[nu]
+    for j in range(rows.shape[0]):
+        h = h_rows[j]
+        if _dot(rows[j], u) - s - h > rel_tol * max(1.0, abs(h)):
+            return False
+    return True
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def linearised_vmax(Z, S, du, P, first_step, zl, pz):
+    """max_{j ≥ 1} V(z̄_j + S_j du), V(z) = zᵀPz: the largest V along the linearised prediction of the plan
+    ub + du (the (21e) slack as the QP saw it).  zl and pz are (k,) work buffers."""
+    k = Z.shape[1]
+    vmax = -np.inf
+    for j in range(1, Z.shape[0]):
+        zl[:] = Z[j]
+        for c in range(S.shape[0]):
+            if j > first_step[c]:
+                d = du[c]
+                sc = S[c, j]
+                for r in range(k):
+                    zl[r] += d * sc[r]
+        _matvec_into(P, zl, pz, k)
+        v = _dot(pz, zl)
+        if v > vmax:
+            vmax = v
+    return vmax

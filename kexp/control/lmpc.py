@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
-from .condense import block_maps_expm, block_maps_poly, condense
+from .condense import block_maps_expm, block_maps_poly, condense, linearised_vmax, rows_hold
 from .kernels import rollout, rollout_poly
 from .qp import DenseQp
 from .zoh_poly import zoh_polynomial
@@ -213,6 +213,8 @@ class Lmpc:
         self._condense(np.zeros(self.k), np.zeros(self.nu), True)
         self._condense(np.zeros(self.k), np.zeros(self.nu), False)
         self._rollout(np.zeros(self.k), np.zeros((self.nb, self.m)))
+        rows_hold(self._rows, self._h_rows, np.zeros(self.nu + 1), 1.0)
+        linearised_vmax(self._Z, self._S, np.zeros(self.nu), self.P, self._first, self._zz[: self.k], self._PS[0])
 
     def _buffers(self) -> None:
         """The arrays the compiled condensing writes into, allocated once (kexp.control.condense)."""
@@ -320,8 +322,7 @@ class Lmpc:
         res = self.qp_f.solve(H.T, g, G, h_u, self.x_l, self.x_u)    # H is symmetric: H.T is its column-major view
         if not (res.success and active == "21e"):
             return res, res.iterations
-        tol = self.cfg.qp_eps * np.maximum(1.0, np.abs(self._h_rows))
-        if np.all(self._rows_violation(res.x) <= tol):
+        if rows_hold(self._rows, self._h_rows, res.x, self.cfg.qp_eps):
             return res, res.iterations
         self._G_rows[:, : self.nu] = self._rows
         full = self.qp_e.solve(H.T, g, self._G_rows, self._h_rows, self.x_l, self.x_u)
@@ -335,7 +336,7 @@ class Lmpc:
         z0 = np.ascontiguousarray(z0, dtype=float)
         ctx = lyapunov_context(self.clf, self.law, cfg, z0)
         region, h0, beta0, rhs_21f, active = ctx.region, ctx.h0, ctx.beta0, ctx.rhs_21f, ctx.active
-        if not np.all(np.isfinite(z0)):
+        if not np.isfinite(z0).all():
             return self._fallback(h0, "non-finite state z", region, active, t0, "not_run", 0, 0)
         Ubar = self._blocks_from_steps(self._useq)
         qp_iters = 0
@@ -349,10 +350,9 @@ class Lmpc:
                 return self._fallback(h0, res.message or res.status, region, active, t0, res.status, it, qp_iters)
             # np.minimum(np.maximum(·)) is np.clip's result (NaN included) at half its call cost on small arrays
             Unew = np.minimum(np.maximum(res.x[: self.nu].reshape(self.nb, self.m), self.u_min), self.u_max)
-            step = Unew - Ubar
             if cfg.max_iter > 1:
-                Unew = self._line_search(z0, Ubar, step, active, beta0, rhs_21f)
-            done = np.max(np.abs(Unew - Ubar)) <= cfg.tol
+                Unew = self._line_search(z0, Ubar, Unew - Ubar, active, beta0, rhs_21f)
+            done = cfg.max_iter == 1 or np.max(np.abs(Unew - Ubar)) <= cfg.tol
             if it == 1 and cfg.iterate_when == "binding" and not self._qp_binds(res.x, Unew, active, beta0, rhs_21f):
                 done = True   # nothing active: the real-time iteration's answer is the step's
             Ubar = np.ascontiguousarray(Unew)
@@ -368,9 +368,8 @@ class Lmpc:
         if active == "21e":
             # slack and binding as the QP saw them: the linearised prediction at the applied plan (an exact rollout
             # here cost 0.48 ms, a quarter of the step; the plan's exact prediction is logged when requested)
-            du = Ubar.reshape(-1) - self._ub
-            zl = (self._Z.reshape(-1) + du @ self._S.reshape(self.nu, -1)).reshape(self._Z.shape)[1:]
-            vmax = float(np.max(self.clf.lyap.value(zl)))
+            vmax = linearised_vmax(self._Z, self._S, Ubar.reshape(-1) - self._ub, self.P, self._first,
+                                   self._zz[: self.k], self._PS[0])
             slack = max(0.0, vmax - self.clf.r_hat)
             binds = vmax >= self.clf.r_hat - 1e-6 * max(1.0, self.clf.r_hat)
         elif active == "21f":
