@@ -97,7 +97,8 @@ class LieGain:
 
     def single(self, z: np.ndarray, a: float, beta: np.ndarray) -> np.ndarray:
         """h at one state z (k,) given its L_BV = ``beta`` (m,) (``a`` unused): ``law(z[None])[0]``, unbatched."""
-        return np.clip(np.where(np.isfinite(beta), -self.k * beta, 0.0), self.u_min, self.u_max)
+        return np.minimum(np.maximum(np.where(np.isfinite(beta), -self.k * beta, 0.0), self.u_min),
+                          self.u_max)   # = np.clip
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,7 +134,7 @@ class ModelLqrGain:
     def single(self, z: np.ndarray, a: float, beta: np.ndarray) -> np.ndarray:
         """h at one state z (k,) (``a``, ``beta`` unused): ``law(z[None])[0]``, unbatched."""
         u = -(self.K @ np.asarray(z, dtype=float))
-        return np.clip(np.where(np.isfinite(u), u, 0.0), self.u_min, self.u_max)
+        return np.minimum(np.maximum(np.where(np.isfinite(u), u, 0.0), self.u_min), self.u_max)   # = np.clip
 
 
 LAWS = {"sontag": Sontag, "lie_gain": LieGain, "model_lqr": ModelLqrGain}
