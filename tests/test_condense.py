@@ -7,26 +7,14 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from kexp.clf import ClfConfig, synthesize_clf
-from kexp.control import Lmpc, LmpcConfig, make_law
+from kexp.control import Lmpc, LmpcConfig
 from kexp.control.blocking import block_of_step, block_sizes
 from kexp.control.condense import (block_maps_expm, block_maps_poly, condense, linearised_vmax, poly_degree,
                                    rows_hold)
 from kexp.control.kernels import rollout_sensitivity
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import zoh_polynomial
-from kexp.data import Circle, DataConfig, collect
-from kexp.dictionary import Monomials
-from kexp.identify import identify
-from kexp.systems import VanDerPol
-
-
-@pytest.fixture(scope="module")
-def vdp():
-    s = VanDerPol()
-    model = identify(s, collect(s, Circle(100, 2.5), DataConfig(T=10.0)), Monomials(2, 5))
-    clf = synthesize_clf(model, ClfConfig())
-    return s, model, clf, make_law("sontag", clf.lyap, -5.0, 5.0)
+from test_lmpc import vdp, with_inputs  # noqa: F401 - vdp: the Van der Pol model, CLF and law of test_lmpc
 
 
 def _run_condense(lam, B, b, dt, z0, U, bos, C, use_c, P, zp=None):
@@ -57,13 +45,11 @@ def test_condense_equals_the_reference_products(vdp, m, use_c):
     """Rollout, sensitivities, H, g and the (21e) rows from the one-pass kernel equal the per-step Van Loan
     reference kernel with the dense products written out in numpy (H = 2Δw·Σ Y_jᵀY_j + diag, g = 2Δw·Σ Y_jᵀ(y_j −
     Y_j ub), with a terminal cost w_T·V(z_Np); rows 2 z_jᵀP S_j, h = r̂ − V(z_j) + rows·ub), relative to each
-    array's size: measured ≤ 1e-14; asserted 1e-12.  One input from the cut ZOH polynomial, two from the exponential; a cost on z and on x = Cz."""
+    array's size: measured ≤ 1e-14; asserted 1e-12.  One input from the cut ZOH polynomial, two from the
+    exponential; a cost on z and on x = Cz."""
     _, model, clf, _ = vdp
     rng = np.random.default_rng(11)
-    lam = np.ascontiguousarray(model.Lambda)
-    B = np.concatenate([model.B] + [rng.normal(size=model.B.shape) * np.abs(model.B).max() for _ in range(m - 1)])
-    b = np.concatenate([model.b] + [rng.normal(size=model.b.shape) * np.abs(model.b).max() for _ in range(m - 1)])
-    B, b = np.ascontiguousarray(B), np.ascontiguousarray(b)
+    lam, B, b = with_inputs(model, m, rng)
     C = np.ascontiguousarray(model.C)
     P = np.ascontiguousarray(clf.P)
     zp = zoh_polynomial(lam, B, b, model.dt, 5.0) if m == 1 else None

@@ -150,6 +150,13 @@ def test_lmpc_fast_path_closed_loop_equals_the_per_step_kernel(vdp):
         assert abs(runs[0].metrics.cost - runs[1].metrics.cost) <= 1e-9 * runs[1].metrics.cost
 
 
+def with_inputs(model, m, rng):
+    """(Λ, B, b) of the model with m inputs: its own B, b and, for m > 1, random extra B_i, b_i of the same size."""
+    B = np.concatenate([model.B] + [rng.normal(size=model.B.shape) * np.abs(model.B).max() for _ in range(m - 1)])
+    b = np.concatenate([model.b] + [rng.normal(size=model.b.shape) * np.abs(model.b).max() for _ in range(m - 1)])
+    return (np.ascontiguousarray(model.Lambda), np.ascontiguousarray(B), np.ascontiguousarray(b))
+
+
 @pytest.mark.parametrize("m", [1, 2, 3])
 def test_per_block_frechet_kernel_equals_the_per_step_kernel(vdp, m):
     """The general path (any m, any input size): map and derivatives once per move block by expm_frechet, then
@@ -158,10 +165,7 @@ def test_per_block_frechet_kernel_equals_the_per_step_kernel(vdp, m):
     inputs up to ±7."""
     _, model, _, _ = vdp
     rng = np.random.default_rng(5)
-    lam = np.ascontiguousarray(model.Lambda)
-    B = np.concatenate([model.B] + [rng.normal(size=model.B.shape) * np.abs(model.B).max() for _ in range(m - 1)])
-    b = np.concatenate([model.b] + [rng.normal(size=model.b.shape) * np.abs(model.b).max() for _ in range(m - 1)])
-    B, b = np.ascontiguousarray(B), np.ascontiguousarray(b)
+    lam, B, b = with_inputs(model, m, rng)
     for bos in (block_of_step(block_sizes(100, 5, 20)), block_of_step(block_sizes(30, None, None))):
         nb = int(bos.max()) + 1
         for _ in range(4):

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .kernels import _augmented, expm_frechet
+from .kernels import _augmented, _directions, expm_frechet
 
 TAIL = 2.0 ** -54
 
@@ -91,11 +91,7 @@ def block_maps_poly(coef, norms, rho, lam, B, b, dt, U, E, L):
     n = k + 1
     top = coef.shape[0] - 1
     coef_flat = coef.reshape(top + 1, n * n)
-    D1 = np.zeros((n, n))
-    for r in range(k):
-        for c in range(k):
-            D1[r, c] = B[0, r, c] * dt
-        D1[r, k] = b[0, r] * dt
+    D1 = _directions(B, b, dt)[0]
     for blk in range(U.shape[0]):
         u = U[blk, 0]
         if abs(u) <= rho:
@@ -113,12 +109,7 @@ def block_maps_expm(lam, B, b, dt, U, E, L):
     k = lam.shape[0]
     m = B.shape[0]
     n = k + 1
-    D = np.zeros((m, n, n))
-    for i in range(m):
-        for r in range(k):
-            for c in range(k):
-                D[i, r, c] = B[i, r, c] * dt
-            D[i, r, k] = b[i, r] * dt
+    D = _directions(B, b, dt)
     for blk in range(U.shape[0]):
         M = _augmented(lam, B, b, U[blk], dt)
         for i in range(m):

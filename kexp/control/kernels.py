@@ -41,6 +41,19 @@ def _augmented(lam, B, b, u, dt):
 
 
 @njit(cache=True)
+def _directions(B, b, dt):
+    """D (m, k+1, k+1), D_i = [[B_i, b_i], [0, 0]]Δ: the derivative of the augmented generator along input i."""
+    m, k = B.shape[0], B.shape[1]
+    D = np.zeros((m, k + 1, k + 1))
+    for i in range(m):
+        for r in range(k):
+            for c in range(k):
+                D[i, r, c] = B[i, r, c] * dt
+            D[i, r, k] = b[i, r] * dt
+    return D
+
+
+@njit(cache=True)
 def _matmul(a, b):
     n, p = a.shape
     q = b.shape[1]
@@ -202,12 +215,7 @@ def rollout_sensitivity(lam, B, b, dt, z0, U, block_of_step):
     last = -1
     E = np.eye(k + 1)
     M = np.zeros((k + 1, k + 1))
-    Ei = np.zeros((m, k + 1, k + 1))
-    for i in range(m):
-        for r in range(k):
-            for c in range(k):
-                Ei[i, r, c] = B[i, r, c] * dt
-            Ei[i, r, k] = b[i, r] * dt
+    Ei = _directions(B, b, dt)
     d = np.empty(k + 1)
     b1 = np.empty(k + 1)
     b2 = np.empty(k + 1)
@@ -354,11 +362,7 @@ def rollout_sensitivity_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
     E = np.zeros((n, n))
     L = np.zeros((n, n))
     E[k, k] = 1.0
-    D1 = np.zeros((n, n))
-    for r in range(k):
-        for c in range(k):
-            D1[r, c] = B[0, r, c] * dt
-        D1[r, k] = b[0, r] * dt
+    D1 = _directions(B, b, dt)[0]
     last = -1
     for j in range(Np):
         blk = block_of_step[j]
@@ -412,12 +416,7 @@ def rollout_sensitivity_blocks(lam, B, b, dt, z0, U, block_of_step):
     E = np.zeros((n, n))
     L = np.zeros((m, n, n))
     Li = np.zeros((n, n))
-    D = np.zeros((m, n, n))
-    for i in range(m):
-        for r in range(k):
-            for c in range(k):
-                D[i, r, c] = B[i, r, c] * dt
-            D[i, r, k] = b[i, r] * dt
+    D = _directions(B, b, dt)
     last = -1
     for j in range(Np):
         blk = block_of_step[j]
