@@ -16,7 +16,7 @@ For each model and horizon Np ∈ {50, 100, 200} (move blocking: 5 free moves, 2
 variables whatever the horizon), the RTI LMPC runs the closed loop on the true system from 3 initial conditions
 (default_rng(0), within ±0.8 of x_eq) for --T seconds; the table gives the median and p99 of the step time
 (``ControlStep.solve_time``, the first step of each run left out), the memory a step holds
-(``kexp.control.lmpc.memory_estimate``, the model the memory budget uses), and the growth exponents fitted by least
+(``kexp.control.memory.memory_estimate``, the model the memory budget uses), and the growth exponents fitted by least
 squares on log-log axes: time ∝ k^a at Np = 100 (one input; over the models that form a block's map the same way,
 and over all) and time ∝ Np^b per model.  The table says which
 way each model forms the ZOH map of a block: the polynomial in u (:mod:`kexp.control.zoh_poly`, one input, when
@@ -42,7 +42,8 @@ import numpy as np  # noqa: E402
 
 from kexp.clf import ClfConfig, synthesize_clf  # noqa: E402
 from kexp.control import make_law  # noqa: E402
-from kexp.control.lmpc import Lmpc, LmpcConfig, memory_estimate  # noqa: E402
+from kexp.control.lmpc import Lmpc, LmpcConfig  # noqa: E402
+from kexp.control.memory import memory_estimate  # noqa: E402
 from kexp.data import Box, DataConfig, collect  # noqa: E402
 from kexp.dictionary import Monomials  # noqa: E402
 from kexp.identify import identify  # noqa: E402

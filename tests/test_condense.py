@@ -9,34 +9,11 @@ import scipy.linalg as sla
 
 from kexp.control import Lmpc, LmpcConfig
 from kexp.control.blocking import block_of_step, block_sizes
-from kexp.control.condense import (block_maps_expm, block_maps_poly, condense, linearised_vmax, poly_degree,
-                                   rows_hold)
+from kexp.control.condense import block_maps_poly, linearised_vmax, poly_degree, rows_hold
 from kexp.control.kernels import rollout_sensitivity
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import zoh_polynomial
-from test_lmpc import vdp, with_inputs  # noqa: F401 - vdp: the Van der Pol model, CLF and law of test_lmpc
-
-
-def _run_condense(lam, B, b, dt, z0, U, bos, C, use_c, P, zp=None):
-    k, m, nb, Np = lam.shape[0], B.shape[0], U.shape[0], len(bos)
-    n, nu = k + 1, U.size
-    E, L = np.zeros((nb, n, n)), np.zeros((nb, m, n, n))
-    if zp is not None:
-        block_maps_poly(zp.coef, zp.norms, zp.rho, lam, B, b, dt, U, E, L)
-    else:
-        block_maps_expm(lam, B, b, dt, U, E, L)
-    starts = np.concatenate([[0], np.flatnonzero(np.diff(bos)) + 1]).astype(np.int64)
-    first = np.repeat(starts, m)
-    out = dict(Z=np.zeros((Np + 1, k)), S=np.zeros((nu, Np + 1, k)), HS=np.zeros((nu, nu)), q=np.zeros(nu),
-               H=np.zeros((nu + 1, nu + 1)), g=np.zeros(nu + 1), rows=np.zeros((Np, nu)), Vbar=np.zeros(Np),
-               h_rows=np.zeros(Np))
-    terminal = 0.7
-    Y = np.zeros((nu + 1, Np + 1, C.shape[0]))
-    rdiag = np.linspace(0.1, 0.3, nu)
-    condense(E, L, bos, first, z0, U.reshape(-1), C, use_c, 0.02, rdiag, P, terminal, 1.5, True, out["Z"],
-             out["S"], Y, out["HS"], out["q"], out["H"], out["g"], out["rows"], out["Vbar"], out["h_rows"],
-             np.zeros(n), np.zeros((nu, k)))
-    return out, rdiag
+from test_lmpc import condensed, vdp, with_inputs  # noqa: F401 - vdp: the Van der Pol model, CLF and law
 
 
 @pytest.mark.parametrize("m", [1, 2])
@@ -57,7 +34,7 @@ def test_condense_equals_the_reference_products(vdp, m, use_c):
     for scale in (1.0, 0.05):
         U = rng.uniform(-5, 5, (20, m)) * scale
         z0 = model.lift(rng.uniform(-1.5, 1.5, 2))
-        out, rdiag = _run_condense(lam, B, b, model.dt, z0, U, bos, C if use_c else np.zeros((1, model.k)), use_c,
+        out, rdiag = condensed(lam, B, b, model.dt, z0, U, bos, C if use_c else np.zeros((1, model.k)), use_c,
                                    P, zp)
         Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)      # S0 (Np+1, k, nu)
         ub = U.reshape(-1)

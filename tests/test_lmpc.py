@@ -7,8 +7,8 @@ import scipy.linalg as sla
 from kexp.clf import ClfConfig, synthesize_clf
 from kexp.control import ExplicitController, Lmpc, LmpcConfig, make_law
 from kexp.control.blocking import block_of_step, block_sizes
-from kexp.control.kernels import (expm_frechet, rollout, rollout_poly, rollout_sensitivity,
-                                  rollout_sensitivity_blocks, rollout_sensitivity_poly)
+from kexp.control.condense import block_maps_expm, block_maps_poly, condense
+from kexp.control.kernels import expm_frechet, rollout, rollout_poly, rollout_sensitivity
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import zoh_degree, zoh_polynomial
 from kexp.data import Circle, DataConfig, collect
@@ -27,6 +27,30 @@ def vdp():
     model = identify(s, collect(s, Circle(100, 2.5), DataConfig(T=10.0)), Monomials(2, 5))
     clf = synthesize_clf(model, ClfConfig())
     return s, model, clf, make_law("sontag", clf.lyap, -5.0, 5.0)
+
+
+def condensed(lam, B, b, dt, z0, U, bos, C, use_c, P, zp=None):
+    """The block maps (from the polynomial zp, else the exponential) and one condensing pass (terminal weight 0.7,
+    cost scale 0.02, r̂ = 1.5, input diagonal linspace(0.1, 0.3)): its outputs by name, and that diagonal."""
+    k, m, nb, Np = lam.shape[0], B.shape[0], U.shape[0], len(bos)
+    n, nu = k + 1, U.size
+    E, L = np.zeros((nb, n, n)), np.zeros((nb, m, n, n))
+    if zp is not None:
+        block_maps_poly(zp.coef, zp.norms, zp.rho, lam, B, b, dt, U, E, L)
+    else:
+        block_maps_expm(lam, B, b, dt, U, E, L)
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(bos)) + 1]).astype(np.int64)
+    first = np.repeat(starts, m)
+    out = dict(Z=np.zeros((Np + 1, k)), S=np.zeros((nu, Np + 1, k)), HS=np.zeros((nu, nu)), q=np.zeros(nu),
+               H=np.zeros((nu + 1, nu + 1)), g=np.zeros(nu + 1), rows=np.zeros((Np, nu)), Vbar=np.zeros(Np),
+               h_rows=np.zeros(Np))
+    terminal = 0.7
+    Y = np.zeros((nu + 1, Np + 1, C.shape[0]))
+    rdiag = np.linspace(0.1, 0.3, nu)
+    condense(E, L, bos, first, z0, U.reshape(-1), C, use_c, 0.02, rdiag, P, terminal, 1.5, True, out["Z"],
+             out["S"], Y, out["HS"], out["q"], out["H"], out["g"], out["rows"], out["Vbar"], out["h_rows"],
+             np.zeros(n), np.zeros((nu, k)))
+    return out, rdiag
 
 
 def test_rollout_is_the_exact_zero_order_hold(vdp):
@@ -75,10 +99,10 @@ def test_polynomial_zoh_equals_the_per_step_exponential(vdp):
         for _ in range(5):
             U = rng.uniform(lo, hi, (20, 1))
             z0 = model.lift(rng.uniform(-2, 2, 2))
-            Z, Sb = rollout_sensitivity_poly(zp.coef, zp.rho, lam, B, b, model.dt, z0, U, bos)
+            out, _ = condensed(lam, B, b, model.dt, z0, U, bos, np.zeros((1, model.k)), False, np.eye(model.k), zp)
             Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)
-            assert np.max(np.abs(Z - Z0)) <= 1e-12 * np.max(np.abs(Z0))
-            assert np.max(np.abs(Sb.transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
+            assert np.max(np.abs(out["Z"] - Z0)) <= 1e-12 * np.max(np.abs(Z0))
+            assert np.max(np.abs(out["S"].transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
 
 
 def test_polynomial_rollout_equals_the_exponential_one(vdp):
@@ -135,7 +159,7 @@ def test_zoh_polynomial_is_computed_once_per_model_and_range(vdp):
 
 def test_lmpc_fast_path_closed_loop_equals_the_per_step_kernel(vdp):
     """The RTI closed loop with the polynomial fast path and with the general per-block kernel (zoh=None,
-    rollout_sensitivity_blocks): the same inputs to 1e-9 over 2 s from two ICs, inner region and ring both
+    block_maps_expm): the same inputs to 1e-9 over 2 s from two ICs, inner region and ring both
     visited."""
     s, model, clf, h = vdp
     for x0 in ICS[:2]:
@@ -171,11 +195,11 @@ def test_per_block_frechet_kernel_equals_the_per_step_kernel(vdp, m):
         for _ in range(4):
             U = rng.uniform(-7, 7, (nb, m))
             z0 = model.lift(rng.uniform(-2, 2, 2))
-            Z, Sb = rollout_sensitivity_blocks(lam, B, b, model.dt, z0, U, bos)
+            out, _ = condensed(lam, B, b, model.dt, z0, U, bos, np.zeros((1, model.k)), False, np.eye(model.k))
             Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)
-            assert Sb.shape == (nb * m, len(bos) + 1, model.k)
-            assert np.max(np.abs(Z - Z0)) <= 1e-12 * np.max(np.abs(Z0))
-            assert np.max(np.abs(Sb.transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
+            assert out["S"].shape == (nb * m, len(bos) + 1, model.k)
+            assert np.max(np.abs(out["Z"] - Z0)) <= 1e-12 * np.max(np.abs(Z0))
+            assert np.max(np.abs(out["S"].transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
 
 
 def test_block_sizes():

@@ -9,7 +9,7 @@ import textwrap
 import pytest
 
 from kexp.control import LmpcConfig
-from kexp.control.lmpc import MEMORY_BUDGET_GB, check_memory, memory_estimate
+from kexp.control.memory import MEMORY_BUDGET_GB, check_memory, memory_estimate
 from kexp.errors import ConfigError
 
 
@@ -47,7 +47,7 @@ MEASURE = textwrap.dedent("""
     import numpy as np
     from kexp.clf import ClfConfig, synthesize_clf
     from kexp.control import Lmpc, LmpcConfig, make_law
-    from kexp.control.lmpc import memory_estimate
+    from kexp.control.memory import memory_estimate
     from kexp.data import Circle, DataConfig, collect
     from kexp.dictionary import Monomials
     from kexp.identify import identify

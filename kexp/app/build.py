@@ -294,7 +294,7 @@ def dictionary_size(cfg: Mapping[str, Any], n: int) -> int:
 def check_memory_budget(spec: ControllerSpec, k: int, m: int) -> None:
     """An LMPC horizon whose memory exceeds the budget: refuse before identification (kexp.control.lmpc)."""
     if spec.kind == "lmpc":
-        from ..control.lmpc import check_memory
+        from ..control.memory import check_memory
         check_memory(spec.lmpc, k, m)
 
 

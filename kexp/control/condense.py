@@ -106,9 +106,7 @@ def block_maps_poly(coef, norms, rho, lam, B, b, dt, U, E, L):
 def block_maps_expm(lam, B, b, dt, U, E, L):
     """E[c] ← expm(M_c) and L[c, i] ← its Fréchet derivative along [[B_i, b_i], [0, 0]]Δ for every block c and
     input i, M_c = [[Λ + Σ_i U[c, i] B_i, Σ_i U[c, i] b_i], [0, 0]]Δ: any number of inputs, any input size."""
-    k = lam.shape[0]
     m = B.shape[0]
-    n = k + 1
     D = _directions(B, b, dt)
     for blk in range(U.shape[0]):
         M = _augmented(lam, B, b, U[blk], dt)

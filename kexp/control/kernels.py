@@ -8,14 +8,12 @@ respect to u_i is the corresponding block of expm([[M, E_i], [0, M]]Δ)·[0; z; 
 machine precision.  Hence the rollout and its Jacobian are exact to rounding: no discretisation error beyond
 the zero-order hold itself, which *is* the sample-and-hold of the closed loop.
 
-Three kernels, equal to rounding (tests/test_lmpc.py).  :func:`rollout_sensitivity` (any number of inputs, the
-reference): E = expm(M) once per move block and the derivative by a Van Loan vector series once per step.  The
-LMPC uses the other two, which form the map and its derivative once per move block (the input is constant
-within it) and apply them to each of its steps by matrix-vector products: :func:`rollout_sensitivity_poly` (one
-input, when the input range allows it) from the polynomial of :mod:`kexp.control.zoh_poly`;
-:func:`rollout_sensitivity_blocks` (any number of inputs, any range) from :func:`expm_frechet`, one Fréchet
-derivative per input.  The top-level kernels release the GIL (``nogil``): a run's log writer thread works while
-they run.
+Here: :func:`rollout_sensitivity`, the reference (any number of inputs: E = expm(M) once per move block and the
+derivative by a Van Loan vector series once per step); :func:`rollout` and :func:`rollout_poly`, the exact
+prediction of a plan (a logged plan, a line search's merit); the matrix exponential and its Fréchet derivative.
+The LMPC's rollout with sensitivities and its condensed QP come from :mod:`kexp.control.condense`, equal to the
+reference to rounding (tests/test_condense.py).  The top-level kernels release the GIL (``nogil``): a run's log
+writer thread works while they run.
 """
 from __future__ import annotations
 
@@ -250,7 +248,7 @@ def expm_frechet(M, D, E, L):
     """E ← expm(M) and L ← the Fréchet derivative of expm at M in the direction D (all (n, n)), i.e. the
     top-right block of expm([[M, D], [0, M]]): scaling and squaring of a Taylor polynomial on the pairs
     (A^j, ∂A^j) (product rule), with one degree more than :func:`expm_small` so that the derivative's remainder
-    is below rounding too.  Used by :func:`rollout_sensitivity_poly` for inputs outside its polynomial's range."""
+    is below rounding too.  Used by :mod:`kexp.control.condense` for a block's map and derivatives."""
     n = M.shape[0]
     s, nrm = _scaling(M)
     sc = 0.5 ** s
@@ -275,7 +273,7 @@ def expm_frechet(M, D, E, L):
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
 def _poly_map(coef, v, E):
-    """E ← Σ_d coef[d] v^d (Horner over whole matrices): :func:`_poly_block` without the derivative."""
+    """E ← Σ_d coef[d] v^d (Horner over whole matrices), the full polynomial (:func:`rollout_poly`)."""
     D = coef.shape[0] - 1
     n = coef.shape[1]
     for r in range(n):
@@ -288,41 +286,6 @@ def _poly_map(coef, v, E):
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
-def _poly_block(coef, v, inv_rho, E, L):
-    """E ← Σ_d coef[d] v^d and L ← (1/ρ)·Σ_d d·coef[d] v^{d−1} (Horner over whole matrices, contiguous)."""
-    _poly_map(coef, v, E)
-    D = coef.shape[0] - 1
-    n = coef.shape[1]
-    for r in range(n):
-        for c in range(n):
-            L[r, c] = D * coef[D, r, c]
-    for d in range(D - 1, 0, -1):
-        for r in range(n):
-            for c in range(n):
-                L[r, c] = L[r, c] * v + d * coef[d, r, c]
-    for r in range(n):
-        for c in range(n):
-            L[r, c] *= inv_rho
-
-
-@njit(cache=True, fastmath={"reassoc", "contract"})
-def _step_poly(E, L, zz, z_next, S, j, blk, k):
-    """Step j → j+1 within block ``blk``, sensitivities stored by block (S[c, j] = ∂z_j/∂U_c, (k,)):
-    z_next ← (E·zz)[:k]; S[blk, j+1] ← (L·zz)[:k] (the derivative of this step's map with respect to the block's
-    input); S[c, j+1] += E[:k, :k]·S[c, j] for the blocks c ≤ blk so far."""
-    n = k + 1
-    for r in range(k):
-        acc = 0.0
-        dacc = 0.0
-        for l in range(n):
-            acc += E[r, l] * zz[l]
-            dacc += L[r, l] * zz[l]
-        z_next[r] = acc
-        S[blk, j + 1, r] = dacc
-    _propagate(E, S, j, blk + 1, k)
-
-
-@njit(cache=True, fastmath={"reassoc", "contract"})
 def _map_state(E, zz, z_next, k):
     """z_next ← (E·zz)[:k]: one step of a block's map E on the augmented state zz = [z; 1]."""
     for r in range(k):
@@ -330,106 +293,6 @@ def _map_state(E, zz, z_next, k):
         for l in range(k + 1):
             acc += E[r, l] * zz[l]
         z_next[r] = acc
-
-
-@njit(cache=True, fastmath={"reassoc", "contract"})
-def _propagate(E, S, j, ncols, k):
-    """S[c, j+1] += E[:k, :k]·S[c, j] for the sensitivity columns c < ``ncols`` (those of the blocks so far)."""
-    for c in range(ncols):
-        for r in range(k):
-            acc = 0.0
-            for l in range(k):
-                acc += E[r, l] * S[c, j, l]
-            S[c, j + 1, r] += acc
-
-
-@njit(cache=True, nogil=True)   # the run's log writer thread works meanwhile
-def rollout_sensitivity_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
-    """Z (Np+1, k) and Sb (nb, Np+1, k) with Sb[c, j] = ∂z_j/∂U_c, for a one-input model whose exact ZOH map is
-    the polynomial ``coef`` (:class:`kexp.control.zoh_poly.ZohPolynomial`, in u/ρ on |u| ≤ ρ): Sb is
-    :func:`rollout_sensitivity`'s S in the order (block, step, coordinate), equal to it to rounding.  The input is
-    constant within a move block, so the map E and its derivative L = dE/du are formed once per block (from the
-    polynomial; by :func:`expm_frechet` for |u| > ρ) and applied to each of its steps; the sensitivity to the
-    block's input accumulates by w_{j+1} = E w_j + L [z_j; 1]."""
-    k = lam.shape[0]
-    n = k + 1
-    Np = block_of_step.shape[0]
-    nb = U.shape[0]
-    Z = np.empty((Np + 1, k))
-    S = np.zeros((nb, Np + 1, k))
-    Z[0] = z0
-    zz = np.empty(n)
-    E = np.zeros((n, n))
-    L = np.zeros((n, n))
-    E[k, k] = 1.0
-    D1 = _directions(B, b, dt)[0]
-    last = -1
-    for j in range(Np):
-        blk = block_of_step[j]
-        if blk != last:
-            u = U[blk, 0]
-            if abs(u) <= rho:
-                _poly_block(coef, u / rho, 1.0 / rho, E, L)
-            else:
-                expm_frechet(_augmented(lam, B, b, U[blk], dt), D1, E, L)
-            last = blk
-        zz[:k] = Z[j]
-        zz[k] = 1.0
-        _step_poly(E, L, zz, Z[j + 1], S, j, blk, k)
-    return Z, S
-
-
-@njit(cache=True, fastmath={"reassoc", "contract"})
-def _step_blocks(E, L, zz, z_next, S, j, blk, k, m):
-    """Step j → j+1 within block ``blk`` for m inputs (S[c, j] = ∂z_j/∂vec(U)_c, (k,), c = block·m + input):
-    z_next ← (E·zz)[:k]; S[blk·m + i, j+1] ← (L_i·zz)[:k]; S[c, j+1] += E[:k, :k]·S[c, j] for the columns of the
-    blocks ≤ blk."""
-    n = k + 1
-    _map_state(E, zz, z_next, k)
-    for i in range(m):
-        c = blk * m + i
-        for r in range(k):
-            dacc = 0.0
-            for l in range(n):
-                dacc += L[i, r, l] * zz[l]
-            S[c, j + 1, r] = dacc
-    _propagate(E, S, j, (blk + 1) * m, k)
-
-
-@njit(cache=True, nogil=True)   # the run's log writer thread works meanwhile
-def rollout_sensitivity_blocks(lam, B, b, dt, z0, U, block_of_step):
-    """Z (Np+1, k) and Sb (nb·m, Np+1, k), Sb[c, j] = ∂z_j/∂vec(U)_c: :func:`rollout_sensitivity` for any number
-    of inputs and any input size, in :func:`rollout_sensitivity_poly`'s layout and with its economy: the input is
-    constant within a move block, so the map E = expm(M) and its derivatives L_i = dE/du_i (the Fréchet
-    derivatives of expm at M along [[B_i, b_i], [0, 0]]Δ, :func:`expm_frechet`) are formed once per block and
-    applied to each of its steps by matrix-vector products (the per-step kernel sums a Van Loan series in every
-    step).  Equal to :func:`rollout_sensitivity` to rounding (tests/test_lmpc.py)."""
-    k = lam.shape[0]
-    m = B.shape[0]
-    n = k + 1
-    Np = block_of_step.shape[0]
-    nb = U.shape[0]
-    Z = np.empty((Np + 1, k))
-    S = np.zeros((nb * m, Np + 1, k))
-    Z[0] = z0
-    zz = np.empty(n)
-    E = np.zeros((n, n))
-    L = np.zeros((m, n, n))
-    Li = np.zeros((n, n))
-    D = _directions(B, b, dt)
-    last = -1
-    for j in range(Np):
-        blk = block_of_step[j]
-        if blk != last:
-            M = _augmented(lam, B, b, U[blk], dt)
-            for i in range(m):
-                expm_frechet(M, D[i], E, Li)
-                L[i] = Li
-            last = blk
-        zz[:k] = Z[j]
-        zz[k] = 1.0
-        _step_blocks(E, L, zz, Z[j + 1], S, j, blk, k, m)
-    return Z, S
 
 
 @njit(cache=True, nogil=True)

@@ -25,6 +25,7 @@ from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
 from .condense import block_maps_expm, block_maps_poly, condense, linearised_vmax, rows_hold
 from .kernels import rollout, rollout_poly
+from .memory import check_memory
 from .qp import DenseQp
 from .zoh_poly import zoh_polynomial
 
@@ -79,44 +80,6 @@ class LmpcConfig:
         if not self.slack_weight > 0:
             raise ConfigError(f"lmpc.slack_weight={self.slack_weight}: use a number > 0")
         block_sizes(self.horizon, self.free_moves, self.blocks)  # validates the blocking
-
-
-MEMORY_BUDGET_GB = 4.0  # the default budget of check_memory; the environment variable KEXP_MEMORY_BUDGET_GB sets it
-
-
-def memory_estimate(config: LmpcConfig, k: int, m: int) -> int:
-    """Bytes (float64) an :class:`Lmpc` with ``config`` holds at once in a control step, for ``k`` eigen-coordinates
-    and ``m`` inputs: the rollout sensitivity S (Np+1, k, nu) and one product of its size, the QP's Hessian with
-    its products and factorisation (6 of (nu+1)²) and the constraint rows with their copies (4 of (Np+1)(nu+1));
-    Np = horizon, nu = m·(number of move blocks)."""
-    n_steps = int(config.horizon)
-    nu = m * (n_steps if config.blocks is None else min(int(config.blocks), n_steps))
-    words = 2 * (n_steps + 1) * k * nu + 6 * (nu + 1) ** 2 + 4 * (n_steps + 1) * (nu + 1) + 2 * n_steps * m
-    return 8 * words
-
-
-def memory_budget() -> float:
-    """The budget in bytes: ``$KEXP_MEMORY_BUDGET_GB`` or :data:`MEMORY_BUDGET_GB` GB."""
-    import os
-    raw = os.environ.get("KEXP_MEMORY_BUDGET_GB") or MEMORY_BUDGET_GB
-    try:
-        gb = float(raw)
-    except ValueError:
-        gb = float("nan")
-    if not gb > 0:
-        raise ConfigError(f"KEXP_MEMORY_BUDGET_GB={raw!r}: use a number of gigabytes > 0")
-    return gb * 1e9
-
-
-def check_memory(config: LmpcConfig, k: int, m: int) -> None:
-    """Refuse a horizon and blocking whose LMPC would need more than the memory budget (before anything runs)."""
-    need, budget = memory_estimate(config, k, m), memory_budget()
-    if need > budget:
-        blocks = "null" if config.blocks is None else config.blocks
-        raise ConfigError(
-            f"controller.lmpc.horizon={config.horizon} with blocks={blocks} needs about {need / 1e9:.3g} GB for "
-            f"k={k} dictionary functions and m={m} input(s), over the budget of {budget / 1e9:.3g} GB "
-            "(KEXP_MEMORY_BUDGET_GB): lower the horizon or controller.lmpc.blocks, or raise the budget")
 
 
 @dataclass(frozen=True)
@@ -287,10 +250,9 @@ class Lmpc:
 
     def _qp_data(self, z0, Ubar, active, rhs_21f, beta0):
         """The condensed QP at the guess Ubar, z_j ≈ z̄_j + S_j·vec(U − Ubar) (cost and terminal cost from the
-        compiled pass, :meth:`_condense`): (H, g, G, h_u) with one constraint
-        row.  Inside Ω_r̂ that row is the (21e) row with the least margin at the guess (:meth:`_solve` checks the
-        solution against all Np rows and solves with all of them if one is violated); else (21f), or 0 ≤ 1."""
-        cfg = self.cfg
+        compiled pass, :meth:`_condense`): (H, g, G, h_u) with one constraint row.  Inside Ω_r̂ that row is the
+        (21e) row with the least margin at the guess (:meth:`_solve` checks the solution against all Np rows and
+        solves with all of them if one is violated); else (21f), or 0 ≤ 1."""
         ub = Ubar.reshape(-1)
         self._ub = ub
         self._maps(Ubar)

@@ -8,7 +8,7 @@ coefficients are computed once per model, scaled to v = u/ρ on |u| ≤ ρ (Ĉ_d
 truncated where its remainder, bounded by e^{‖X‖}·Σ_{d>D} (ρ‖Y‖)^d/d! (and one degree more for dE/du), is below
 rounding.  Then E(u) and dE/du cost 2(D+1) scaled matrix additions instead of a matrix exponential and its
 Fréchet derivative: the same numbers to rounding.  Inputs outside |u| ≤ ρ are left to the exponential
-(:func:`kexp.control.kernels.rollout_sensitivity_poly` does so per block).
+(:func:`kexp.control.condense.block_maps_poly` does so per block).
 """
 from __future__ import annotations
 
