@@ -163,7 +163,7 @@ def load_baseline(rev: str):
 def step_flops(ctrl, qp_iterations: float, active: str, degrees=None) -> dict[str, float]:
     """Floating-point operations (multiply and add counted apart) of one RTI step of ``ctrl`` (an Lmpc with the
     one-input polynomial ZOH), from the algorithm's sizes: k, n = k+1, the polynomial's degree per block
-    (``degrees``, the cut of kexp.control.condense.poly_degree; default the full degree D), the block sizes,
+    (``degrees``, the cut of kexp.control.kernels.poly_degree; default the full degree D), the block sizes,
     horizon Np, nu inputs, the step each column's block starts (f_c), and PIQP's iterations.  Lower-order terms
     (vector updates of PIQP, bookkeeping) are left out, so this is a lower bound on the work.
       map + derivative per block   E and dE/du by one Horner pass: 4·D_b·n²
@@ -374,7 +374,7 @@ def main(argv=None) -> int:
 
     from kexp.clf import ClfConfig, synthesize_clf
     from kexp.control import Lmpc, LmpcConfig, make_law
-    from kexp.control.condense import poly_degree
+    from kexp.control.kernels import poly_degree
     from kexp.control.oracle import IpoptLmpc
     from kexp.data import Circle, DataConfig, collect
     from kexp.dictionary import Monomials

@@ -9,8 +9,8 @@ import scipy.linalg as sla
 
 from kexp.control import Lmpc, LmpcConfig
 from kexp.control.blocking import block_of_step, block_sizes
-from kexp.control.condense import block_maps_poly, linearised_vmax, poly_degree, rows_hold
-from kexp.control.kernels import rollout_sensitivity
+from kexp.control.condense import block_maps_poly, linearised_vmax, rows_hold
+from kexp.control.kernels import poly_degree, rollout_sensitivity
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import zoh_polynomial
 from test_lmpc import condensed, vdp, with_inputs  # noqa: F401 - vdp: the Van der Pol model, CLF and law

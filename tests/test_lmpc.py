@@ -79,11 +79,19 @@ def test_rollout_is_the_exact_zero_order_hold(vdp):
         assert np.all(S[: np.flatnonzero(bos == blk)[0] + 1, :, blk] == 0)  # causality
 
 
+def random_plans(model, rng):
+    """Five random 20-block one-input plans with |u| ≤ 5 (the polynomial's range), five with |u| ≤ 7 (past it),
+    each with a random lifted start in [−2, 2]²."""
+    for lo, hi in ((-5, 5), (-7, 7)):
+        for _ in range(5):
+            yield rng.uniform(lo, hi, (20, 1)), model.lift(rng.uniform(-2, 2, 2))
+
+
 def test_polynomial_zoh_equals_the_per_step_exponential(vdp):
     """The one-input fast path (the ZOH map as a polynomial in u, its map and derivative once per move block)
     equals the per-step kernel (expm per block, a Van Loan series per step) to rounding, inside and outside the
     polynomial's range |u| ≤ ρ (there it falls back to expm_frechet); measured 2e-14 in range, 4e-14 with
-    inputs up to ±7 (50 random plans each)."""
+    inputs up to ±7 (five random plans in each range)."""
     _, model, _, _ = vdp
     lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
     zp = zoh_polynomial(lam, B, b, model.dt, 5.0)
@@ -93,16 +101,12 @@ def test_polynomial_zoh_equals_the_per_step_exponential(vdp):
                                  [np.zeros((1, model.k + 1))]]) * model.dt)
         E = np.einsum("d,drc->rc", (u / zp.rho) ** np.arange(zp.degree + 1), zp.coef)
         assert np.max(np.abs(E - ref)) <= 1e-14 * np.max(np.abs(ref))
-    rng = np.random.default_rng(3)
     bos = block_of_step(block_sizes(100, 5, 20))
-    for lo, hi in ((-5, 5), (-7, 7)):
-        for _ in range(5):
-            U = rng.uniform(lo, hi, (20, 1))
-            z0 = model.lift(rng.uniform(-2, 2, 2))
-            out, _ = condensed(lam, B, b, model.dt, z0, U, bos, np.zeros((1, model.k)), False, np.eye(model.k), zp)
-            Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)
-            assert np.max(np.abs(out["Z"] - Z0)) <= 1e-12 * np.max(np.abs(Z0))
-            assert np.max(np.abs(out["S"].transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
+    for U, z0 in random_plans(model, np.random.default_rng(3)):
+        out, _ = condensed(lam, B, b, model.dt, z0, U, bos, np.zeros((1, model.k)), False, np.eye(model.k), zp)
+        Z0, S0 = rollout_sensitivity(lam, B, b, model.dt, z0, U, bos)
+        assert np.max(np.abs(out["Z"] - Z0)) <= 1e-12 * np.max(np.abs(Z0))
+        assert np.max(np.abs(out["S"].transpose(1, 2, 0) - S0)) <= 1e-12 * np.max(np.abs(S0))
 
 
 def test_polynomial_rollout_equals_the_exponential_one(vdp):
@@ -111,15 +115,11 @@ def test_polynomial_rollout_equals_the_exponential_one(vdp):
     _, model, _, _ = vdp
     lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
     zp = zoh_polynomial(lam, B, b, model.dt, 5.0)
-    rng = np.random.default_rng(6)
     bos = block_of_step(block_sizes(100, 5, 20))
-    for lo, hi in ((-5, 5), (-7, 7)):
-        for _ in range(5):
-            U = rng.uniform(lo, hi, (20, 1))
-            z0 = model.lift(rng.uniform(-2, 2, 2))
-            Z0 = rollout(lam, B, b, model.dt, z0, U, bos)
-            assert np.max(np.abs(rollout_poly(zp.coef, zp.rho, lam, B, b, model.dt, z0, U, bos) - Z0)) <= \
-                1e-12 * np.max(np.abs(Z0))
+    for U, z0 in random_plans(model, np.random.default_rng(6)):
+        Z0 = rollout(lam, B, b, model.dt, z0, U, bos)
+        assert np.max(np.abs(rollout_poly(zp.coef, zp.norms, zp.rho, lam, B, b, model.dt, z0, U, bos) - Z0)) <= \
+            1e-12 * np.max(np.abs(Z0))
 
 
 def test_expm_frechet_is_the_van_loan_block():

@@ -16,9 +16,13 @@ composes once in the parent.
 """
 from __future__ import annotations
 
+import copy
+import os
 from typing import Sequence
 
-from hydra._internal.config_loader_impl import ConfigLoaderImpl
+from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_dirname
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from omegaconf import OmegaConf, open_dict
 
 
 def structure_of(override: str) -> str:
@@ -75,13 +79,6 @@ class StructureCachingConfigLoader(ConfigLoaderImpl):
 def compose_job(loader, master_config, sweep_overrides: list[str]):
     """The config of one sweep job: Hydra's ``load_sweep_config``, from this process's earlier composition of a job
     with the same structure when there is one."""
-    import copy
-    import os
-
-    from hydra._internal.config_loader_impl import get_overrides_dirname
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-    from omegaconf import OmegaConf, open_dict
-
     hydra_overrides = list(OmegaConf.to_container(master_config.hydra.overrides.hydra))
     overrides = hydra_overrides + sweep_overrides
     key = (str(master_config.hydra.job.config_name), tuple(structure_of(o) for o in overrides))

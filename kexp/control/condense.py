@@ -26,34 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .kernels import _augmented, _directions, expm_frechet
-
-TAIL = 2.0 ** -54
-
-
-@njit(cache=True)
-def poly_degree(norms, v, top):
-    """The lowest degree D ≤ ``top`` at which the polynomial Σ_d C_d v^d (‖C_d‖∞ = norms[d]) and its derivative
-    can stop: the dropped terms Σ_{d>D} norms[d]|v|^d and Σ_{d>D} d·norms[d]|v|^(d−1) are below 2⁻⁵⁴ of
-    norms[0] and of norms[1] (the sizes of E and of dE/dv at v = 0) respectively."""
-    a = abs(v)
-    if a == 0.0:
-        return 1
-    tol_e = TAIL * norms[0]
-    tol_l = TAIL * norms[1]
-    pw = np.empty(top + 1)
-    pw[0] = 1.0
-    for d in range(top):
-        pw[d + 1] = pw[d] * a
-    tail_e = 0.0
-    tail_l = 0.0
-    for t in range(top - 1):
-        d = top - t                       # d = top .. 2
-        tail_e += norms[d] * pw[d]
-        tail_l += d * norms[d] * pw[d - 1]
-        if tail_e > tol_e or tail_l > tol_l:
-            return d
-    return 1
+from .kernels import _augmented, _directions, expm_frechet, poly_degree
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})

@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .zoh_poly import TAIL
+
 
 @njit(cache=True)
 def _augmented(lam, B, b, u, dt):
@@ -271,18 +273,44 @@ def expm_frechet(M, D, E, L):
         E[:, :] = E @ E
 
 
+@njit(cache=True)
+def poly_degree(norms, v, top):
+    """The lowest degree D ≤ ``top`` at which the polynomial Σ_d C_d v^d (‖C_d‖∞ = norms[d]) and its derivative
+    can stop: the dropped terms Σ_{d>D} norms[d]|v|^d and Σ_{d>D} d·norms[d]|v|^(d−1) are below 2⁻⁵⁴ of
+    norms[0] and of norms[1] (the sizes of E and of dE/dv at v = 0) respectively."""
+    a = abs(v)
+    if a == 0.0:
+        return 1
+    tol_e = TAIL * norms[0]
+    tol_l = TAIL * norms[1]
+    pw = np.empty(top + 1)
+    pw[0] = 1.0
+    for d in range(top):
+        pw[d + 1] = pw[d] * a
+    tail_e = 0.0
+    tail_l = 0.0
+    for t in range(top - 1):
+        d = top - t                       # d = top .. 2
+        tail_e += norms[d] * pw[d]
+        tail_l += d * norms[d] * pw[d - 1]
+        if tail_e > tol_e or tail_l > tol_l:
+            return d
+    return 1
+
+
 @njit(cache=True, fastmath={"reassoc", "contract"})
-def _poly_map(coef, v, E):
-    """E ← Σ_d coef[d] v^d (Horner over whole matrices), the full polynomial (:func:`rollout_poly`)."""
-    D = coef.shape[0] - 1
+def _poly_map(coef, v, E, top):
+    """E ← Σ_{d≤top} coef[d] v^d (Horner over whole matrices): the map alone, for :func:`rollout_poly`."""
     n = coef.shape[1]
+    ct = coef[top]
     for r in range(n):
         for c in range(n):
-            E[r, c] = coef[D, r, c]
-    for d in range(D - 1, -1, -1):
+            E[r, c] = ct[r, c]
+    for t in range(top):
+        cd = coef[top - 1 - t]
         for r in range(n):
             for c in range(n):
-                E[r, c] = E[r, c] * v + coef[d, r, c]
+                E[r, c] = E[r, c] * v + cd[r, c]
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
@@ -296,10 +324,11 @@ def _map_state(E, zz, z_next, k):
 
 
 @njit(cache=True, nogil=True)
-def rollout_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
-    """:func:`rollout` for a one-input model with the ZOH polynomial ``coef`` on |u| ≤ ``rho``: the block's map from
-    the polynomial (the exponential outside the range), once per block.  A logged plan or a line search's merit
-    costs a tenth of the exponential's (equal to :func:`rollout` to rounding, tests/test_lmpc.py)."""
+def rollout_poly(coef, norms, rho, lam, B, b, dt, z0, U, block_of_step):
+    """:func:`rollout` for a one-input model with the ZOH polynomial ``coef`` on |u| ≤ ``rho`` (``norms`` its
+    coefficients' ∞-norms): the block's map from the polynomial cut at :func:`poly_degree` for its input (the
+    exponential outside the range), once per block.  A logged plan or a line search's merit costs a tenth of the
+    exponential's (equal to :func:`rollout` to rounding, tests/test_lmpc.py)."""
     k = lam.shape[0]
     n = k + 1
     Np = block_of_step.shape[0]
@@ -307,13 +336,14 @@ def rollout_poly(coef, rho, lam, B, b, dt, z0, U, block_of_step):
     Z[0] = z0
     zz = np.empty(n)
     E = np.zeros((n, n))
+    top = coef.shape[0] - 1
     last = -1
     for j in range(Np):
         blk = block_of_step[j]
         if blk != last:
             u = U[blk, 0]
             if abs(u) <= rho:
-                _poly_map(coef, u / rho, E)
+                _poly_map(coef, u / rho, E, poly_degree(norms, u / rho, top))
             else:
                 E[:, :] = expm_small(_augmented(lam, B, b, U[blk], dt))
             last = blk

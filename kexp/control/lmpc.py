@@ -174,7 +174,6 @@ class Lmpc:
         # rollout of a logged plan or a line search
         self._maps(np.zeros((self.nb, self.m)))
         self._condense(np.zeros(self.k), np.zeros(self.nu), True)
-        self._condense(np.zeros(self.k), np.zeros(self.nu), False)
         self._rollout(np.zeros(self.k), np.zeros((self.nb, self.m)))
         rows_hold(self._rows, self._h_rows, np.zeros(self.nu + 1), 1.0)
         linearised_vmax(self._Z, self._S, np.zeros(self.nu), self.P, self._first, self._zz[: self.k], self._PS[0])
@@ -244,8 +243,8 @@ class Lmpc:
     def _rollout(self, z0, U):
         """The exact prediction Z (Np+1, k) of the plan U: from the ZOH polynomial where there is one."""
         if self.zoh is not None:
-            return rollout_poly(self.zoh.coef, self.zoh.rho, self.lam, self.B, self.b, self.model.dt, z0, U,
-                                self.bos)
+            zp = self.zoh
+            return rollout_poly(zp.coef, zp.norms, zp.rho, self.lam, self.B, self.b, self.model.dt, z0, U, self.bos)
         return rollout(self.lam, self.B, self.b, self.model.dt, z0, U, self.bos)
 
     def _qp_data(self, z0, Ubar, active, rhs_21f, beta0):

@@ -30,7 +30,7 @@ MEMO_SIZE = 8
 @dataclass(frozen=True)
 class ZohPolynomial:
     """E(u) = Σ_d coef[d]·(u/rho)^d for |u| ≤ rho; coef (D+1, k+1, k+1); norms (D+1,) the coefficients'
-    ∞-norms (:func:`kexp.control.condense.poly_degree` cuts the series for a smaller |u| with them)."""
+    ∞-norms (:func:`kexp.control.kernels.poly_degree` cuts the series for a smaller |u| with them)."""
 
     coef: np.ndarray
     rho: float
