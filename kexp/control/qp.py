@@ -68,6 +68,10 @@ class DenseQp:
         self.n, self.n_ineq = n, n_ineq
         self.eps, self.max_iter = eps, max_iter
         self._solver = None
+        # compile (or load) the data check for the array layouts solve() passes it, now and not in the first solve
+        # (on a fresh clone that was a 0.3 s first control step)
+        v = np.zeros(n)
+        _scan(np.zeros((n, n), order="F"), v, np.zeros((n_ineq, n), order="F"), np.zeros(n_ineq), v, v, v, v)
 
     def _check(self, H, g, G, h_u, x_l, x_u) -> tuple[str, bool]:
         """(problem, bounds unchanged): the first thing wrong with the data ('' if nothing), and whether the
