@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark: per-step solve time and closed-loop cost of kexp's LMPC (SQP on PIQP) against CasADi + IPOPT.
+"""Benchmark: per-step solve time and closed-loop cost of kexp's LMPC (SQP, QP on kexp's IPM) against CasADi + IPOPT.
 
     python benchmarks/lmpc.py                      # 5 ICs, T = 10 s, move blocking (default LmpcConfig)
     python benchmarks/lmpc.py --quick              # 2 ICs, T = 3 s
@@ -8,7 +8,9 @@
 Problem: Van der Pol, Monomials(2, 5) (N = 21 functions, k = 20 eigen-coordinates), CLF from ClfConfig(), Sontag
 law h on |u| ≤ 5, the LMPC of eq. 21 with LmpcConfig() (horizon 100, 5 free moves / 20 blocks).  Controllers:
 
-* ``rti``       — ``Lmpc(LmpcConfig())``: SQP on PIQP, one QP per step (real-time iteration, max_iter = 1);
+* ``rti``       — ``Lmpc(LmpcConfig())``: SQP, one QP per step (real-time iteration, max_iter = 1) on kexp's compiled
+                  interior point (``qp_solver='ipm'``, the default);
+* ``rti_piqp``  — the same with ``qp_solver='piqp'``: the QP on PIQP, side by side;
 * ``sqp``       — ``Lmpc(LmpcConfig(max_iter=20, tol=1e-6))``: SQP iterated to convergence;
 * ``ipopt``     — the same problem solved by CasADi + IPOPT (see below).
 
@@ -164,15 +166,15 @@ def step_flops(ctrl, qp_iterations: float, active: str, degrees=None) -> dict[st
     """Floating-point operations (multiply and add counted apart) of one RTI step of ``ctrl`` (an Lmpc with the
     one-input polynomial ZOH), from the algorithm's sizes: k, n = k+1, the polynomial's degree per block
     (``degrees``, the cut of kexp.control.kernels.poly_degree; default the full degree D), the block sizes,
-    horizon Np, nu inputs, the step each column's block starts (f_c), and PIQP's iterations.  Lower-order terms
-    (vector updates of PIQP, bookkeeping) are left out, so this is a lower bound on the work.
+    horizon Np, nu inputs, the step each column's block starts (f_c), and the QP's iterations.  Lower-order terms
+    (vector updates of the QP, bookkeeping) are left out, so this is a lower bound on the work.
       map + derivative per block   E and dE/du by one Horner pass: 4·D_b·n²
       per step                     E·[z;1] and L·[z;1] on k rows: 4·k·n; sensitivities A·s_c on the started
                                    columns: 2·k²·(b+1)
       condensing                   H: one dot product per pair c ≤ d over the steps both are non-zero,
                                    Σ_{c≤d} 2·k·(Np − f_d); g: Σ_c 2·k·(Np − f_c) + 2·nu²; (21e) rows and V:
                                    Np·2·k² + Σ_c 2·k·(Np − f_c)
-      QP (dense PIQP, per iter.)   the reduced KKT matrix H + ρI + Gᵀ W G (one row), its Cholesky n_x³/3, two
+      QP (dense IPM, per iter.)    the reduced KKT matrix H + ρI + Gᵀ W G (one row), its Cholesky n_x³/3, two
                                    triangular solves 4·n_x², products with G and Gᵀ 4·n_x
     """
     k, n = ctrl.k, ctrl.k + 1
@@ -187,7 +189,7 @@ def step_flops(ctrl, qp_iterations: float, active: str, degrees=None) -> dict[st
         "per-step propagation": sum(4 * k * n + 2 * k * k * (int(b) + 1) for b in ctrl.bos),
         "condensing": gram + float(np.sum(2 * k * after)) + 2 * nu * nu
         + ((Np * 2 * k * k + float(np.sum(2 * k * after))) if active == "21e" else 0),
-        "QP (PIQP)": qp_iterations * (p * nx * nx + nx ** 3 / 3 + 4 * nx * nx + 4 * p * nx),
+        "QP": qp_iterations * (p * nx * nx + nx ** 3 / 3 + 4 * nx * nx + 4 * p * nx),
     }
     parts["total"] = sum(parts.values())
     return parts
@@ -333,7 +335,7 @@ def breakdown(ctrls, z0, warm, reps: int):
         parts = [("rollout and sensitivities (numba; today: block maps, then one kernel that also forms H, g and the "
                   "(21e) rows)", acc["rs"]),
                  ("condensing in numpy (rest of _qp_data: H, g, G, h_u)", acc["qp_data"] - acc["rs"]),
-                 ("DenseQp.solve: PIQP update + solve", acc["piqp"]),
+                 ("DenseQp.solve: the solver (PIQP update + solve, or kexp's IPM)", acc["piqp"]),
                  ("DenseQp.solve: guard + array conversion", acc["qp"] - acc["piqp"]),
                  ("exact rollout of the applied plan (21e check)", acc["rollout"]),
                  ("rest (V, h(z), L_BV, bookkeeping, warm-start shift)",
@@ -399,7 +401,7 @@ def main(argv=None) -> int:
 
     def pr(line: str = "") -> None:
         print(line, flush=True)
-    pr("# LMPC per-step solve time and closed-loop cost: SQP on PIQP vs CasADi + IPOPT")
+    pr("# LMPC per-step solve time and closed-loop cost: kexp's SQP (QP on its IPM, or on PIQP) vs CasADi + IPOPT")
     pr("")
     pr(f"- date: {time.strftime('%Y-%m-%d %H:%M:%S %Z')}; host: {platform.node()}, {os.cpu_count()} CPUs, "
        f"{platform.processor() or platform.machine()}; load average at start {load0[0]:.2f} / {load0[1]:.2f}")
@@ -443,20 +445,24 @@ def main(argv=None) -> int:
     old_lmpc = None
     if args.baseline:
         old_lmpc, old_sha = load_baseline(args.baseline)
-    kinds = ("rti_old", "rti", "sqp", "ipopt") if old_lmpc else ("rti", "sqp", "ipopt")
+    kinds = ("rti_old", "rti_piqp", "rti", "sqp", "ipopt") if old_lmpc else ("rti_piqp", "rti", "sqp", "ipopt")
 
     def make(kind, cfg):
         if kind == "rti_old":
             return old_lmpc.Lmpc(model, clf, h, cfg, -5.0, 5.0)
         if kind == "rti":
             return Lmpc(model, clf, h, cfg, -5.0, 5.0)
+        if kind == "rti_piqp":
+            return Lmpc(model, clf, h, replace(cfg, qp_solver="piqp"), -5.0, 5.0)
         if kind == "sqp":
             return Lmpc(model, clf, h, replace(cfg, max_iter=20, tol=1e-6), -5.0, 5.0)
         return IpoptLmpc(model, clf, h, cfg, -5.0, 5.0,
                          discretisation="polynomial" if args.ipopt == "poly" else "exact")
 
     labels = {"rti_old": f"SQP/PIQP, RTI, before issue 14 ({old_sha if old_lmpc else ''})",
-              "rti": "SQP/PIQP, RTI (max_iter=1)", "sqp": "SQP/PIQP, converged (max_iter=20, tol=1e-6)",
+              "rti_piqp": "SQP, RTI, QP on PIQP (qp_solver='piqp')",
+              "rti": "SQP, RTI (max_iter=1), QP on kexp's IPM (the default)",
+              "sqp": "SQP, converged (max_iter=20, tol=1e-6)",
               "ipopt": "CasADi + IPOPT" + (" (poly form)" if args.ipopt == "poly" else "")}
     ctrls, build = {}, {}
     for vname, cfg in variants:
@@ -562,8 +568,8 @@ def main(argv=None) -> int:
     pr("")
     pr("States from the RTI closed loop of IC1, with the warm start the controller had there.  The parts are "
        "timed by wrapping, in this script, the rollout-and-sensitivity calls (Lmpc._maps and Lmpc._condense; "
-       "in a baseline Lmpc._sensitivity or its module's rollout_sensitivity), the module's rollout, DenseQp.solve and Lmpc._qp_data; 'PIQP update + "
-       "solve' is QpResult.solve_time (wall clock around PIQP's update()/solve()).  Times are means per step"
+       "in a baseline Lmpc._sensitivity or its module's rollout_sensitivity), the module's rollout, DenseQp.solve and Lmpc._qp_data; 'the solver' "
+       "is QpResult.solve_time (wall clock around PIQP's update()/solve() or kexp's compiled IPM).  Times are means per step"
        + (f"; the baseline ({old_sha}) and today's controller alternate every repetition." if old_lmpc else "."))
     pr("")
     peak = peak_gflops()
@@ -596,7 +602,7 @@ def main(argv=None) -> int:
             fl = step_flops(cur, info.qp_iterations, info.active, degrees)
             frows = []
             times = {"map + derivative per block": acc["maps"], "per-step propagation": None, "condensing": None,
-                     "QP (PIQP)": acc["piqp"], "total": med}
+                     "QP": acc["piqp"], "total": med}
             for name, f in fl.items():
                 t = times.get(name)
                 frows.append([name, f"{f / 1e6:.3f}", f"{f / peak / 1e6:.4f}",

@@ -1,4 +1,4 @@
-"""Lyapunov-based MPC (paper eq. 21) on the bilinear Koopman model, by SQP on PIQP.
+"""Lyapunov-based MPC (paper eq. 21) on the bilinear Koopman model, by SQP on a dense QP solver.
 
 Decision variables: the move-blocked input sequence U (nb, m) and one slack s ≥ 0.
     min  Δ Σ_{j=1..Np} ℓ(z_j) + Δ Σ_j u_jᵀ R u_j + w_T·V(z_Np) + ρ(s + s²)
@@ -11,7 +11,7 @@ with ℓ(z) = w‖z‖² (state_cost 'z', W = wI) or w‖Cz‖² (state_cost 'x'
 Outside Ω_r the paper gives no constraint; kexp keeps (21f) there too.
 
 Each SQP iteration linearises the exact rollout around the current guess (warm start: the previous solution
-shifted by one step), condenses it into a dense QP in (U, s) and solves it with PIQP.  ``max_iter = 1`` is the
+shifted by one step), condenses it into a dense QP in (U, s) and solves it (kexp.control.ipm, or PIQP).  ``max_iter = 1`` is the
 real-time iteration (one QP per step).  A failed QP falls back to h(z_0) and says why.
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ from .blocking import block_of_step, block_sizes
 from .condense import block_maps_expm, block_maps_poly, condense, linearised_vmax, rows_hold
 from .kernels import rollout, rollout_poly
 from .memory import check_memory
-from .qp import DenseQp
+from .qp import SOLVERS, DenseQp
 from .zoh_poly import zoh_polynomial
 
 STATE_COSTS = ("z", "x")
@@ -42,7 +42,9 @@ class LmpcConfig:
     SQP iterations per step (1: real-time iteration) stopping at step size ``tol``; ``iterate_when`` 'always'
     (up to ``max_iter`` in every step) or 'binding' (past the first QP only when its solution has an input bound or
     a Lyapunov constraint active: the real-time iteration elsewhere); ``slack_weight`` ρ of the
-    softened (21e); ``use_21e`` / ``use_21f`` switch those constraints; ``qp_eps``, ``qp_max_iter`` for PIQP."""
+    softened (21e); ``use_21e`` / ``use_21f`` switch those constraints; ``qp_solver`` 'ipm' (kexp's compiled
+    interior point, :mod:`kexp.control.ipm`) or 'piqp', with its tolerance ``qp_eps`` and iteration limit
+    ``qp_max_iter``."""
 
     horizon: int = 100
     w: float = 1.0
@@ -57,6 +59,7 @@ class LmpcConfig:
     slack_weight: float = 1e4
     use_21e: bool = True
     use_21f: bool = True
+    qp_solver: str = "ipm"
     qp_eps: float = 1e-8
     qp_max_iter: int = 100
 
@@ -77,6 +80,8 @@ class LmpcConfig:
             raise ConfigError(f"lmpc.max_iter={self.max_iter}: use an int >= 1 (1 = real-time iteration)")
         if self.iterate_when not in ITERATE_WHEN:
             raise ConfigError(f"lmpc.iterate_when={self.iterate_when!r}; valid: {ITERATE_WHEN}")
+        if self.qp_solver not in SOLVERS:
+            raise ConfigError(f"lmpc.qp_solver={self.qp_solver!r}; valid: {SOLVERS}")
         if not self.slack_weight > 0:
             raise ConfigError(f"lmpc.slack_weight={self.slack_weight}: use a number > 0")
         block_sizes(self.horizon, self.free_moves, self.blocks)  # validates the blocking
@@ -153,9 +158,10 @@ class Lmpc:
         self.nb = len(self.sizes)
         self.nu = self.nb * self.m
         # two QPs of fixed structure: Np rows of (21e) inside Ω_r̂, one row ((21f), or an inactive 0 ≤ 1) elsewhere;
-        # PIQP's work per iteration grows with the rows, and a 21f step needs only its one
-        self.qp_e = DenseQp(self.nu + 1, config.horizon, eps=config.qp_eps, max_iter=config.qp_max_iter)
-        self.qp_f = DenseQp(self.nu + 1, 1, eps=config.qp_eps, max_iter=config.qp_max_iter)
+        # the QP's work per iteration grows with the rows, and most steps need only one
+        qp = dict(eps=config.qp_eps, max_iter=config.qp_max_iter, solver=config.qp_solver)
+        self.qp_e = DenseQp(self.nu + 1, config.horizon, **qp)
+        self.qp_f = DenseQp(self.nu + 1, 1, **qp)
         self.lam = np.ascontiguousarray(model.Lambda)
         self.B = np.ascontiguousarray(model.B)
         self.b = np.ascontiguousarray(model.b)

@@ -1,7 +1,8 @@
-"""A guarded dense QP on PIQP:  min ½xᵀHx + gᵀx  s.t.  Gx ≤ h_u,  x_l ≤ x ≤ x_u.
+"""A guarded dense QP:  min ½xᵀHx + gᵀx  s.t.  Gx ≤ h_u,  x_l ≤ x ≤ x_u, on kexp's compiled interior-point
+solver (``solver='ipm'``, :mod:`kexp.control.ipm`) or on PIQP (``solver='piqp'``).
 
-PIQP only prints invalid input to ``setup()``/``update()`` and a following ``solve()`` can crash the process
-(design §3), so every array is checked for shape and finiteness here first.  The structure (sizes) is fixed at
+Every array is checked for shape and finiteness here first (PIQP only prints invalid input to ``setup()``/
+``update()`` and a following ``solve()`` can crash the process, design §3).  The structure (sizes) is fixed at
 construction; every solve returns a :class:`QpResult` with a status, never None.
 """
 from __future__ import annotations
@@ -14,6 +15,9 @@ import piqp
 from numba import njit
 
 from ..errors import ConfigError
+from .ipm import SOLVED, STATUS_NAMES, solve_qp
+
+SOLVERS = ("ipm", "piqp")
 
 
 @njit(cache=True)
@@ -54,7 +58,7 @@ _SCAN_PROBLEM = {1: "H contains NaN/inf", 2: "g contains NaN/inf", 3: "G contain
 @dataclass(frozen=True)
 class QpResult:
     x: np.ndarray
-    status: str          # 'solved' or PIQP's status name, or 'invalid_input: …'
+    status: str          # 'solved', the solver's status name, or 'invalid_input: …'
     success: bool
     iterations: int
     solve_time: float    # seconds, wall clock around the solver call
@@ -62,16 +66,25 @@ class QpResult:
 
 
 class DenseQp:
-    def __init__(self, n: int, n_ineq: int, *, eps: float = 1e-8, max_iter: int = 100):
+    """A QP of fixed sizes (n variables, n_ineq rows of G), solved again and again with new data.  ``eps`` is the
+    convergence tolerance (absolute and relative), ``max_iter`` the iteration limit, ``solver`` 'ipm' or 'piqp'."""
+
+    def __init__(self, n: int, n_ineq: int, *, eps: float = 1e-8, max_iter: int = 100, solver: str = "ipm"):
         if n < 1 or n_ineq < 0:
             raise ConfigError(f"QP sizes n={n}, n_ineq={n_ineq} are invalid")
+        if solver not in SOLVERS:
+            raise ConfigError(f"QP solver {solver!r}; valid: {SOLVERS}")
         self.n, self.n_ineq = n, n_ineq
-        self.eps, self.max_iter = eps, max_iter
+        self.eps, self.max_iter, self.solver = eps, max_iter, solver
+        self.solves = 0          # calls of solve() that reached the solver
         self._solver = None
-        # compile (or load) the data check for the array layouts solve() passes it, now and not in the first solve
-        # (on a fresh clone that was a 0.3 s first control step)
+        # compile (or load) the data check and the solver for the array layouts solve() passes them, now and not
+        # in the first solve (on a fresh clone the check alone made a 0.3 s first control step)
         v = np.zeros(n)
-        _scan(np.zeros((n, n), order="F"), v, np.zeros((n_ineq, n), order="F"), np.zeros(n_ineq), v, v, v, v)
+        H0, G0 = np.eye(n, order="F"), np.zeros((n_ineq, n), order="F")
+        _scan(H0, v, G0, np.zeros(n_ineq), v, v, v, v)
+        if solver == "ipm":
+            self._solve_ipm(H0, v, G0, np.ones(n_ineq), v - 1.0, v + 1.0)
 
     def _check(self, H, g, G, h_u, x_l, x_u) -> tuple[str, bool]:
         """(problem, bounds unchanged): the first thing wrong with the data ('' if nothing), and whether the
@@ -95,6 +108,9 @@ class DenseQp:
         problem, same_bounds = self._check(H, g, G, h_u, x_l, x_u)
         if problem:
             return QpResult(np.full(self.n, np.nan), f"invalid_input: {problem}", False, 0, 0.0, problem)
+        self.solves += 1
+        if self.solver == "ipm":
+            return self._solve_ipm(H, g, G, h_u, x_l, x_u)
         t0 = time.perf_counter()
         if self._solver is None:
             s = piqp.DenseSolver()
@@ -117,3 +133,15 @@ class DenseQp:
         ok = status == piqp.PIQP_SOLVED and bool(np.isfinite(x).all())
         name = "solved" if ok else str(status).split(".")[-1]
         return QpResult(x, name, bool(ok), int(res.info.iter), dt, "" if ok else f"PIQP: {name}")
+
+    def _solve_ipm(self, H, g, G, h_u, x_l, x_u) -> QpResult:
+        # the IPM reads rows: H is symmetric, so its transpose (C-ordered when H is Fortran-ordered) is H itself
+        H = H.T if not H.flags.c_contiguous else H
+        G = np.ascontiguousarray(G)
+        x = np.empty(self.n)
+        t0 = time.perf_counter()
+        code, iters = solve_qp(H, g, G, h_u, x_l, x_u, self.eps, self.max_iter, x)
+        dt = time.perf_counter() - t0
+        ok = code == SOLVED
+        name = STATUS_NAMES[code]
+        return QpResult(x, name, ok, int(iters), dt, "" if ok else f"interior point: {name}")
