@@ -2,14 +2,16 @@
 
 Runs the same closed loop without a log, with the per-step RunLogger (flush every simulated second), and with
 the LMPC's predicted horizon logged every 20 steps (the default) or 10 steps too (an extra exact rollout each
-time), and with the writer thread (``RunLogger(background=True)``: the loop only queues each message, the thread
-encodes and writes while the loop is in the GIL-free rollout kernels; measured slower here, so kexp does not use
-it), interleaved, and prints the median wall times and their ratio.  Wall-time ratios between runs carry the
-machine's noise (a few % on a shared 2-core VM), so the cost of logging is also timed directly inside each
-run: the time spent in the logging callback and in close() (with the writer thread: the queueing and the wait
-for the thread's last messages), plus the exact rollouts the LMPC makes only to log its prediction
-(kexp.control.lmpc's rollout and rollout_poly, wrapped here; in RTI mode nothing else calls them), as a share of the no-log run
-time.  The direct measure of the writer-thread mode does not see the thread's competition for the GIL; the
+time), with the chunks compressed in the loop's thread instead of McapFile's compression thread
+(``RunLogger(compress_thread=False)``), and with the writer thread (``RunLogger(background=True)``: the loop only
+queues each message, the thread encodes and writes them at each flush while the loop is in the GIL-free rollout
+kernels; measured slower here, so kexp does not use it), interleaved, and prints the median wall times and their
+ratio.  Wall-time ratios between runs carry the machine's noise (a few % on a shared 2-core VM), so the cost of
+logging is also timed directly inside each run: the time spent in the logging callback and in close() (with the
+writer thread: the queueing and the wait for the thread's last messages; with the compression thread: the wait
+for the last chunk), plus the exact rollouts the LMPC makes only to log its prediction (kexp.control.lmpc's
+rollout and rollout_poly, wrapped here; in RTI mode nothing else calls them), as a share of the no-log run time.
+The direct measure of the thread modes does not see the threads' competition for the GIL and the cores; the
 wall-time column does.  One BLAS thread.
 
     python benchmarks/logging_overhead.py [--repeat 7]
@@ -47,11 +49,13 @@ def main():
     h = make_law("sontag", clf.lyap, -5.0, 5.0)
     x0 = np.array([0.7, -0.5])
     sim = SimConfig(T=10.0)
-    # mode -> (prediction_every, writer thread)
-    every = {"no log": (0, False), "MCAP log": (0, False),
-             "MCAP log + predictions every 20 steps (the default, what kexp runs)": (20, False),
-             "MCAP log + predictions every 10 steps": (10, False),
-             "MCAP log + predictions every 20 steps, writer thread (RunLogger(background=True))": (20, True)}
+    # mode -> (prediction_every, writer thread, compression thread)
+    every = {"no log": (0, False, True), "MCAP log": (0, False, True),
+             "MCAP log + predictions every 20 steps (the default, what kexp runs)": (20, False, True),
+             "MCAP log + predictions every 10 steps": (10, False, True),
+             "MCAP log + predictions every 20 steps, chunks compressed in the loop's thread "
+             "(RunLogger(compress_thread=False))": (20, False, False),
+             "MCAP log + predictions every 20 steps, writer thread (RunLogger(background=True))": (20, True, True)}
     times = {mode: [] for mode in every}
     inside = {mode: [] for mode in times}     # seconds spent on logging inside the run
     spent = [0.0]
@@ -77,10 +81,10 @@ def main():
         modes = list(times)
         for i in range(args.repeat):
             for mode in modes[i % len(modes):] + modes[: i % len(modes)]:  # rotate the order: no mode always first
-                pred, background = every[mode]
+                pred, background, compress_thread = every[mode]
                 ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=pred)
-                logger = (RunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred, background=background)
-                          if mode != "no log" else None)
+                logger = (RunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred, background=background,
+                                    compress_thread=compress_thread) if mode != "no log" else None)
                 cb = logged(logger) if logger else None
                 spent[0] = 0.0
                 t0 = time.perf_counter()

@@ -206,7 +206,7 @@ def test_an_error_on_the_compression_thread_is_raised_in_the_callers_thread():
 class _McapWriter:
     """McapFile's interface on mcap's Writer, making the calls the earlier RunLogger made."""
 
-    def __init__(self, stream, chunk_size, thread=False):
+    def __init__(self, stream, chunk_size, thread):
         self._w = Writer(stream, compression=CompressionType.ZSTD, chunk_size=chunk_size)
         self.start, self.register_schema = self._w.start, self._w.register_schema
         self.register_channel, self.flush, self.finish = self._w.register_channel, self._w.flush, self._w.finish
@@ -300,12 +300,14 @@ def _log_run(lg, run):
     return lg.path.read_bytes()
 
 
-@pytest.mark.parametrize("background", [False, True])
-def test_a_run_log_is_byte_identical_to_the_earlier_writers(tmp_path, monkeypatch, run, background):
+@pytest.mark.parametrize("background,compress_thread", [(False, True), (False, False), (True, True)])
+def test_a_run_log_is_byte_identical_to_the_earlier_writers(tmp_path, monkeypatch, run, background,
+                                                             compress_thread):
     from kexp.recording.writer import RunLogger
     kw = dict(prediction_every=10, flush_every=0.5)
     ref = _log_run(_reference_logger(tmp_path / "ref.mcap", monkeypatch, **kw), run)
-    new = _log_run(RunLogger(tmp_path / "new.mcap", background=background, **kw), run)
+    new = _log_run(RunLogger(tmp_path / "new.mcap", background=background, compress_thread=compress_thread, **kw),
+                   run)
     assert len(new) > 10_000 and new == ref
     summary = make_reader(io.BytesIO(new)).get_summary()
     step_id = next(c.id for c in summary.channels.values() if c.topic == "/step")

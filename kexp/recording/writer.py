@@ -1,12 +1,24 @@
 """RunLogger: one MCAP file per run, written as the run goes, flushed every ``flush_every`` seconds of
 simulated time so a killed run keeps all but its last second.
 
+The file is framed by :class:`~kexp.recording.mcap_file.McapFile` (byte-identical to mcap's Writer, tests), and
+``log_step`` only queues the step's record with its time stamp: its /step and /timing messages are encoded at the
+next flush, in one batch (code that runs faster together than spread between control steps, whose own code evicts
+it from the caches).  Each closed chunk is compressed and written on McapFile's thread (``compress_thread``; zstd
+releases the GIL), while the loop runs its next steps, so a flushed chunk reaches the file about a millisecond
+after the flush.  Measured in ``benchmarks/logging_overhead.py``'s run (the README's logging table; a second run
+in brackets): 22.8 (23.5) µs per step at the defaults (plans every 20 steps, the LMPC's rollouts for them
+included) and 19.0 (16.6) µs without plans, where the README's previous round (mcap's Writer, each step encoded
+as it came) had 67.7 and 51.3 µs; 33.9 (30.1) µs at the defaults with ``compress_thread=False``.  Two such runs at
+once on the 2 cores (ad hoc, 15 interleaved repeats each) showed no wall-time cost of the thread: 0.687 / 0.677 s
+median against 0.708 / 0.666 s without it (0.681 / 0.654 s without a log).
+
 With ``background=True`` the JSON encoding and the MCAP records are written by a writer thread, in the order the
 messages were given (the file is byte-identical to a synchronous one, a test): the control loop only queues each
-message, and the thread can run while the loop is in code that releases the GIL (the LMPC's compiled rollout
-kernels).  An error on the writer thread is raised by the next ``write`` or by ``close``, unchanged.  Measured on
-a 2-core machine it is slower than writing synchronously (+10.1 % wall against +0.4 %, the README's
-logging table, ``benchmarks/logging_overhead.py``: the loop waits for the GIL more than the thread saves), so
+message, and the thread encodes and frames them at each flush, which can overlap the loop's code that releases
+the GIL (the LMPC's compiled kernels).  An error on the writer thread is raised by the next ``write`` or by
+``close``, unchanged.  Measured on a 2-core machine it is slower than writing synchronously (+31.1 % wall against
++1.1 %, 35.1 against 22.8 µs per step in the run: the loop waits for the GIL more than the thread saves), so
 ``kexp`` runs write synchronously; the option stays for machines and loops where it pays, and the benchmark keeps
 measuring it.
 """
@@ -29,6 +41,26 @@ def _ns(t: float) -> int:
     return int(round(float(t) * 1e9))
 
 
+def _step_json(rec) -> bytes:
+    """A /step message: the record's fields as plain numbers, lists and strings."""
+    t = float(rec.t)
+    u = rec.u
+    x_meas, w = getattr(rec, "x_meas", None), getattr(rec, "w", None)
+    return encode({
+        "k": int(rec.k), "t": t, "x": rec.x.tolist(), "x_meas": (rec.x if x_meas is None else x_meas).tolist(),
+        "z": np.asarray(rec.z).tolist(), "u": u.tolist(),
+        # np.zeros, not np.zeros_like: the same zeros, without zeros_like's ~1 us of dispatch
+        "w": (np.zeros(u.shape, u.dtype) if w is None else np.asarray(w)).tolist(),
+        "V": float(rec.V), "Vdot": float(rec.Vdot), "region": rec.region, "active": rec.active,
+        "binds": bool(rec.binds), "slack": float(rec.slack), "status": rec.status, "qp_status": rec.qp_status,
+        "iterations": int(rec.iterations), "qp_iterations": int(rec.qp_iterations),
+        "fallback": bool(rec.fallback), "reason": rec.reason})
+
+
+def _timing_json(rec) -> bytes:
+    return encode({"k": int(rec.k), "t": float(rec.t), "solve_time": float(rec.solve_time)})
+
+
 class RunLogger:
     """Writes one run's MCAP log at ``path`` (parent folders created, an existing file replaced): every channel of
     :data:`~kexp.recording.schema.CHANNELS` registered with its JSON schema, messages time-stamped with simulation
@@ -37,14 +69,15 @@ class RunLogger:
     ``closed_loop``'s ``on_step``, ``log_open_loop``, ``log_summary``, ``log_run_info``) or ``write``, then
     ``close()`` — or use it as a context manager (see the README's Python API).  Writing to an unknown topic
     raises KeyError; a file that cannot be opened raises OSError.  ``background=True``: a writer thread encodes and
-    writes (see the module's docstring); a payload given to ``write`` must then not be changed afterwards."""
+    writes (see the module's docstring); a payload given to ``write`` must then not be changed afterwards.
+    ``compress_thread=False``: chunks are compressed and written in the caller's thread (the same bytes)."""
 
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
-                 background: bool = False):
+                 background: bool = False, compress_thread: bool = True):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._f = open(self.path, "wb")
-        self._w = McapFile(self._f, chunk_size=1 << 20)
+        self._w = McapFile(self._f, chunk_size=1 << 20, thread=compress_thread)
         self._w.start(profile="", library=LIBRARY)
         self._ch = {}
         for topic, schema in CHANNELS.items():
@@ -52,11 +85,14 @@ class RunLogger:
                                           data=json.dumps(schema, sort_keys=True).encode())
             self._ch[topic] = self._w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
         self._seq = {t: 0 for t in CHANNELS}
+        self._step_ch, self._timing_ch = self._ch["/step"], self._ch["/timing"]
         self.flush_every = flush_every
         self.prediction_every = prediction_every
         self._next_flush = flush_every
         self._closed = False
-        self._pending: list = []     # encoded messages waiting for the next flush (synchronous mode)
+        # messages waiting for the next flush: (channel, sequence, log time, data, encoder); data is encoded
+        # (encoder None) or turned into bytes by encoder(data) at the flush
+        self._pending: list = []
         self._queue: queue.SimpleQueue | None = None
         self._error: BaseException | None = None
         if background:
@@ -66,22 +102,26 @@ class RunLogger:
 
     def write(self, topic: str, t: float, payload: dict) -> None:
         """Add one message (numpy values welcome: :func:`~kexp.recording.schema.encode` converts them)."""
-        self._put(topic, _ns(t), payload)
+        if self._queue is None:   # encoded now: the payload may change after this call
+            self._put(topic, _ns(t), encode(payload), None)
+        else:
+            self._put(topic, _ns(t), payload, encode)
 
-    def _put(self, topic: str, ns: int, payload: dict) -> None:
+    def _put(self, topic: str, ns: int, data, encoder) -> None:
         channel = self._ch[topic]          # an unknown topic raises KeyError here, in the caller's thread
         seq = self._seq[topic]
         self._seq[topic] = seq + 1
         if self._queue is None:
-            # encoded now (the payload may change after this call), framed in one batch at the next flush (framing
-            # code runs faster in one batch than spread between control steps, whose code evicts it from the caches)
-            self._pending.append((channel, seq, ns, ns, encode(payload)))
+            self._pending.append((channel, seq, ns, data, encoder))
             return
         self._raise_thread_error()
-        self._queue.put((channel, seq, ns, payload))
+        self._queue.put((channel, seq, ns, data, encoder))
 
     def _write_pending(self) -> None:
-        self._w.add_messages(self._pending)
+        """Encode what waits (in one batch: code that runs faster together than spread between control steps,
+        whose own code evicts it from the caches) and frame it."""
+        self._w.add_messages([(channel, seq, ns, ns, data if encoder is None else encoder(data))
+                              for channel, seq, ns, data, encoder in self._pending])
         self._pending.clear()
 
     def _flush(self) -> None:
@@ -92,9 +132,8 @@ class RunLogger:
             self._queue.put(None)
 
     def _drain(self) -> None:
-        """The writer thread: encodes messages into the pending batch and writes it at each flush (None), until
-        the stop mark (False); what is pending then is written by close() or abandon()."""
-        pending = self._pending
+        """The writer thread: collects the messages and, at each flush (None), encodes and writes them, until the
+        stop mark (False); what waits then is written by close() or abandon()."""
         while True:
             item = self._queue.get()
             if item is False:
@@ -106,8 +145,7 @@ class RunLogger:
                     self._write_pending()
                     self._w.flush()
                 else:
-                    channel, seq, ns, payload = item
-                    pending.append((channel, seq, ns, ns, encode(payload)))
+                    self._pending.append(item)
             except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread unchanged
                 self._error = exc
 
@@ -136,27 +174,24 @@ class RunLogger:
                                  "boundary_r_hat": [] if boundary_r_hat is None else boundary_r_hat})
 
     def log_step(self, rec, control_step=None, model=None) -> None:
-        t = float(rec.t)
-        k = int(rec.k)
-        ns = _ns(t)
-        u = rec.u
-        x_meas, w = getattr(rec, "x_meas", None), getattr(rec, "w", None)
-        self._put("/step", ns, {
-            "k": k, "t": t, "x": rec.x.tolist(), "x_meas": (rec.x if x_meas is None else x_meas).tolist(),
-            "z": np.asarray(rec.z).tolist(), "u": u.tolist(),
-            # np.zeros, not np.zeros_like: the same zeros, 1 us less per step (zeros_like's dispatch)
-            "w": (np.zeros(u.shape, u.dtype) if w is None else np.asarray(w)).tolist(),
-            "V": float(rec.V), "Vdot": float(rec.Vdot), "region": rec.region, "active": rec.active,
-            "binds": bool(rec.binds), "slack": float(rec.slack), "status": rec.status, "qp_status": rec.qp_status,
-            "iterations": int(rec.iterations), "qp_iterations": int(rec.qp_iterations),
-            "fallback": bool(rec.fallback), "reason": rec.reason})
-        self._put("/timing", ns, {"k": k, "t": t, "solve_time": float(rec.solve_time)})
+        """Log one control step (/step, /timing; /prediction every ``prediction_every`` steps).  Only the time
+        stamps are taken now: the messages are encoded from ``rec`` at the next flush (``rec`` must not change
+        until then; ``closed_loop``'s records do not)."""
+        ns = _ns(rec.t)
+        if self._queue is None:   # _put twice, inline: this runs between control steps, with cold caches
+            seq = self._seq
+            s, u = seq["/step"], seq["/timing"]
+            seq["/step"], seq["/timing"] = s + 1, u + 1
+            self._pending += ((self._step_ch, s, ns, rec, _step_json), (self._timing_ch, u, ns, rec, _timing_json))
+        else:
+            self._put("/step", ns, rec, _step_json)
+            self._put("/timing", ns, rec, _timing_json)
         if (self.prediction_every and control_step is not None and control_step.predicted is not None
                 and model is not None and rec.k % self.prediction_every == 0):
             Z = control_step.predicted
-            self.write("/prediction", rec.t, {"k": rec.k, "t": rec.t,
-                                              "t_pred": rec.t + model.dt * np.arange(len(Z)),
-                                              "x_pred": model.to_state(Z)})
+            self._put("/prediction", ns, {"k": rec.k, "t": rec.t,   # new arrays: encoded at the flush
+                                           "t_pred": rec.t + model.dt * np.arange(len(Z)),
+                                           "x_pred": model.to_state(Z)}, encode)
         if rec.t + 1e-12 >= self._next_flush:
             self._flush()
             self._next_flush += self.flush_every
@@ -188,6 +223,7 @@ class RunLogger:
             self._write_pending()
             self._w.finish()
         finally:
+            self._w.stop()
             self._f.close()
 
     def abandon(self) -> None:
@@ -203,6 +239,7 @@ class RunLogger:
         except BaseException:  # noqa: BLE001 - the run's own exception is the one to report
             pass
         finally:
+            self._w.stop()
             self._f.close()
 
     def _stop_thread(self) -> None:
