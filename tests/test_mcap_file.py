@@ -256,26 +256,13 @@ def _reference_logger(path, monkeypatch, **kw):
 
 
 @pytest.fixture(scope="module")
-def run():
-    """A short LMPC closed loop on Van der Pol (200 steps, degree-3 model), and records that vary what a step
-    holds: a disturbance w, no separate x_meas, NaN and infinite values, a float32 lifted state, a list z."""
+def run(short_lmpc_run):
+    """The short LMPC closed loop of conftest's ``short_lmpc_run``, and records that vary what a step holds: a
+    disturbance w, no separate x_meas, NaN and infinite values, a float32 lifted state, a list z."""
     from dataclasses import replace
 
-    from kexp.clf import ClfConfig, synthesize_clf
-    from kexp.control import Lmpc, LmpcConfig, make_law
-    from kexp.data import Circle, DataConfig, collect
-    from kexp.dictionary import Monomials
-    from kexp.identify import identify
-    from kexp.simulate import SimConfig, closed_loop
-    from kexp.systems import VanDerPol
-    system = VanDerPol()
-    model = identify(system, collect(system, Circle(30, 2.5), DataConfig(T=3.0)), Monomials(2, 3))
-    clf = synthesize_clf(model, ClfConfig())
-    law = make_law("sontag", clf.lyap, -5.0, 5.0)
-    ctrl = Lmpc(model, clf, law, LmpcConfig(horizon=20, blocks=None), -5.0, 5.0, prediction_every=10)
-    steps = []
-    result = closed_loop(system, ctrl, np.array([0.4, -0.3]), SimConfig(T=2.0), model=model, lyap=clf.lyap,
-                         on_step=lambda rec, st: steps.append((rec, st)))
+    model, clf, result, steps = short_lmpc_run
+    steps = list(steps)
     last, st = steps[-1]
     rng = np.random.default_rng(1)
     for i, change in enumerate([{"w": rng.normal(size=1)}, {"x_meas": None}, {"V": np.nan, "Vdot": np.inf},

@@ -2,32 +2,16 @@
 caller's thread, and a run that stops with an exception keeps its steps."""
 import warnings
 
-import numpy as np
 import pytest
 
-from kexp.clf import ClfConfig, synthesize_clf
-from kexp.control import Lmpc, LmpcConfig, make_law
-from kexp.data import Circle, DataConfig, collect
-from kexp.dictionary import Monomials
-from kexp.identify import identify
 from kexp.recording import read_log
 from kexp.recording.writer import RunLogger
-from kexp.simulate import SimConfig, closed_loop
-from kexp.systems import VanDerPol
 
 
 @pytest.fixture(scope="module")
-def run():
-    """A short LMPC closed loop on Van der Pol (200 steps; degree-3 model), for logging twice."""
-    system = VanDerPol()
-    model = identify(system, collect(system, Circle(30, 2.5), DataConfig(T=3.0)), Monomials(2, 3))
-    clf = synthesize_clf(model, ClfConfig())
-    law = make_law("sontag", clf.lyap, -5.0, 5.0)
-    ctrl = Lmpc(model, clf, law, LmpcConfig(horizon=20, blocks=None), -5.0, 5.0, prediction_every=10)
-    steps = []
-    result = closed_loop(system, ctrl, np.array([0.4, -0.3]), SimConfig(T=2.0), model=model, lyap=clf.lyap,
-                         on_step=lambda rec, st: steps.append((rec, st)))
-    return model, clf, result, steps
+def run(short_lmpc_run):
+    """A short LMPC closed loop on Van der Pol (conftest), for logging twice."""
+    return short_lmpc_run
 
 
 def _write(path, run, background):
