@@ -206,7 +206,8 @@ class Lmpc:
         self._PS = np.zeros((nu, k))
         self._rdiag = 2 * self.model.dt * self.r_diag + 1e-10
         self._scale = 2 * self.model.dt * self.cfg.w
-        # the QP's arrays: H is symmetric, so its C-ordered buffer is also the column-major one PIQP reads (H.T)
+        # the QP's arrays: H is symmetric, so its C-ordered buffer is also the column-major one PIQP reads (H.T),
+        # and the row-major one kexp's interior point reads
         self._H = np.zeros((nu + 1, nu + 1))
         self._H[-1, -1] = 2 * self.cfg.slack_weight
         self._g = np.zeros(nu + 1)
@@ -349,8 +350,9 @@ class Lmpc:
                            slack=slack, fallback=False, reason="", predicted=Z)
 
     def _qp_binds(self, xsol, U, active, beta0, rhs_21f) -> bool:
-        """Whether the QP's solution has an input bound or a (linearised) Lyapunov constraint active.  PIQP's
-        interior point stops short of an active bound (measured ~4e-5 inside at eps 1e-8), hence the margins: an
+        """Whether the QP's solution has an input bound or a (linearised) Lyapunov constraint active.  An
+        interior point stops short of an active bound (measured up to ~2e-4 inside for PIQP and ~2e-6 for kexp's
+        at eps 1e-8, benchmarks/qp.py), hence the margins: an
         input within 0.1 % of its range from a bound, a row within 1e-4 (relative) of its right-hand side."""
         span = self.u_max - self.u_min
         if np.any(U <= self.u_min + 1e-3 * span) or np.any(U >= self.u_max - 1e-3 * span):

@@ -3,7 +3,7 @@
 
 * :class:`IpoptLmpc` solves the SAME problem as :class:`Lmpc` (paper eq. 21 on the bilinear Koopman model: same
   cost incl. ``state_cost`` 'z'/'x' and ``terminal``, same move blocking, same slack penalty ρ(s + s²), the same
-  (21e)/(21f) switching by region, the same input bounds) as a multiple-shooting NLP, to check the PIQP SQP.
+  (21e)/(21f) switching by region, the same input bounds) as a multiple-shooting NLP, to check kexp's SQP.
 * :class:`NmpcOracle` is a nonlinear MPC on the TRUE system (needs its drift symbolically, see
   :func:`register_symbolic`), a yardstick for what any model-based controller could achieve.
 
@@ -30,7 +30,7 @@ the explicit law h(z_0) and says why; :meth:`step` never raises on a solver fail
 
 ``ControlStep`` fields: ``qp_status`` is IPOPT's return status string, ``iterations`` IPOPT's iteration count, and
 ``qp_iterations`` the same number (each IPOPT iteration is one factorisation of an interior-point KKT system, the
-unit PIQP's iteration count also measures).  ``solve_time`` is the wall time of the whole step.
+unit the LMPC's QP iteration count also measures).  ``solve_time`` is the wall time of the whole step.
 
 casadi is optional (``pip install casadi``, the extra ``kexp[oracle]``): it is imported only here, on first use.
 """
