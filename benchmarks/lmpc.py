@@ -267,7 +267,7 @@ def breakdown(ctrls, z0, warm, reps: int):
     with contextlib.ExitStack() as undo:
         for ctrl in ctrls:
             mod = sys.modules[type(ctrl).__module__]
-            acc = dict(rs=0.0, maps=0.0, cond=0.0, qp_data=0.0, qp=0.0, piqp=0.0, rollout=0.0)
+            acc = dict(rs=0.0, maps=0.0, cond=0.0, qp_data=0.0, qp=0.0, solver=0.0, rollout=0.0)
             accs.append(acc)
 
             def timed(fn, key, acc=acc):
@@ -291,7 +291,7 @@ def breakdown(ctrls, z0, warm, reps: int):
                         res = orig_solve(*a, **kw)
                     finally:
                         acc["qp"] += time.perf_counter() - t
-                    acc["piqp"] += res.solve_time
+                    acc["solver"] += res.solve_time
                     return res
 
                 qp.solve = solve
@@ -335,8 +335,8 @@ def breakdown(ctrls, z0, warm, reps: int):
         parts = [("rollout and sensitivities (numba; today: block maps, then one kernel that also forms H, g and the "
                   "(21e) rows)", acc["rs"]),
                  ("condensing in numpy (rest of _qp_data: H, g, G, h_u)", acc["qp_data"] - acc["rs"]),
-                 ("DenseQp.solve: the solver (PIQP update + solve, or kexp's IPM)", acc["piqp"]),
-                 ("DenseQp.solve: guard + array conversion", acc["qp"] - acc["piqp"]),
+                 ("DenseQp.solve: the solver (PIQP update + solve, or kexp's IPM)", acc["solver"]),
+                 ("DenseQp.solve: guard + array conversion", acc["qp"] - acc["solver"]),
                  ("exact rollout of the applied plan (21e check)", acc["rollout"]),
                  ("rest (V, h(z), L_BV, bookkeeping, warm-start shift)",
                   total - acc["qp_data"] - acc["qp"] - acc["rollout"])]
@@ -484,7 +484,6 @@ def main(argv=None) -> int:
                 f"{time.perf_counter() - t0:.1f} s")
 
     # ------------------------------------------------------------------ tables
-    verdicts = []
     for vname, cfg in variants:
         stats = {kind: summarise(runs[(vname, kind)]) for kind in kinds}
         Jref = stats["ipopt"]["costs"]
@@ -602,7 +601,7 @@ def main(argv=None) -> int:
             fl = step_flops(cur, info.qp_iterations, info.active, degrees)
             frows = []
             times = {"map + derivative per block": acc["maps"], "per-step propagation": None, "condensing": None,
-                     "QP": acc["piqp"], "total": med}
+                     "QP": acc["solver"], "total": med}
             for name, f in fl.items():
                 t = times.get(name)
                 frows.append([name, f"{f / 1e6:.3f}", f"{f / peak / 1e6:.4f}",

@@ -11,8 +11,9 @@ two solves with it.  For the LMPC (n = 21, one row) that is ~3 000 flops per fac
 few tens of microseconds in one compiled call; PIQP took 90–140 µs per QP on this path, most of it per-iteration
 and call overhead (README, "Speed").
 
-Everything is plain loops in a fixed order, no BLAS and no reassociation (numba without fastmath), so a solve gives
-the same bits on every x86-64 CPU.  Statuses: :data:`SOLVED`, :data:`MAX_ITER` (not converged within the iteration
+Everything is plain loops in a fixed order, no BLAS, and numba without fastmath (no reassociation, no fused
+multiply-adds), so a solve's result should not depend on the CPU's vector width or BLAS kernel (reasoned from how
+it is compiled; not tested on another CPU).  Statuses: :data:`SOLVED`, :data:`MAX_ITER` (not converged within the iteration
 limit), :data:`INFEASIBLE` (the constraints stay violated while the multipliers grow without bound: no x
 satisfies them), :data:`NUMERICAL` (the reduced matrix lost positive definiteness, or a non-finite iterate).
 """
@@ -114,7 +115,7 @@ def _factor(H, G, idx, d, M) -> bool:
 
 
 @njit(cache=True)
-def _newton(H, G, idx, sign, M, s, lam, rd, rp, rc, dx, ds, dl, w, t) -> None:
+def _newton(G, idx, sign, M, s, lam, rd, rp, rc, dx, ds, dl, w, t) -> None:
     """The Newton step (dx, ds, dλ) of  H dx + Aᵀdλ = −r_d,  A dx + ds = −r_p,  Λ ds + S dλ = −r_c  from the
     factor M of H + Aᵀ(Λ/S)A:  M dx = −r_d + Aᵀ S⁻¹(r_c − Λ r_p),  ds = −r_p − A dx,  dλ = −(r_c + Λ ds)/s."""
     m = s.shape[0]
@@ -221,7 +222,7 @@ def solve_qp(H, g, G, h, x_l, x_u, eps, max_iter, x):
         # predictor (affine scaling)
         for i in range(m):
             rc[i] = s[i] * lam[i]
-        _newton(H, G, idx, sign, M, s, lam, rd, rp, rc, dx, ds, dl, w, t)
+        _newton(G, idx, sign, M, s, lam, rd, rp, rc, dx, ds, dl, w, t)
         if it == 0:   # the starting point: the affine step's s and λ, moved away from zero
             for j in range(n):
                 x[j] += dx[j]
@@ -237,7 +238,7 @@ def solve_qp(H, g, G, h, x_l, x_u, eps, max_iter, x):
         # corrector: centring σμ and the second-order term ds∘dλ of the predictor
         for i in range(m):
             rc[i] = s[i] * lam[i] + ds[i] * dl[i] - sigma * mu
-        _newton(H, G, idx, sign, M, s, lam, rd, rp, rc, dx, ds, dl, w, t)
+        _newton(G, idx, sign, M, s, lam, rd, rp, rc, dx, ds, dl, w, t)
         a = min(1.0, TAU * min(_max_step(s, ds), _max_step(lam, dl)))
         for j in range(n):
             x[j] += a * dx[j]

@@ -7,7 +7,7 @@ next flush, in one batch (code that runs faster together than spread between con
 it from the caches).  Each closed chunk is compressed and written on McapFile's thread (``compress_thread``; zstd
 releases the GIL), while the loop runs its next steps, so a flushed chunk reaches the file about a millisecond
 after the flush.  Measured in ``benchmarks/logging_overhead.py``'s run (the README's logging table; a second run
-in brackets): 22.8 (23.5) µs per step at the defaults (plans every 20 steps, the LMPC's rollouts for them
+in brackets; 24.2 in a third, noisier run): 22.8 (23.5) µs per step at the defaults (plans every 20 steps, the LMPC's rollouts for them
 included) and 19.0 (16.6) µs without plans, where the README's previous round (mcap's Writer, each step encoded
 as it came) had 67.7 and 51.3 µs; 33.9 (30.1) µs at the defaults with ``compress_thread=False``.  Two such runs at
 once on the 2 cores (ad hoc, 15 interleaved repeats each) showed no wall-time cost of the thread: 0.687 / 0.677 s
@@ -85,7 +85,6 @@ class RunLogger:
                                           data=json.dumps(schema, sort_keys=True).encode())
             self._ch[topic] = self._w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
         self._seq = {t: 0 for t in CHANNELS}
-        self._step_ch, self._timing_ch = self._ch["/step"], self._ch["/timing"]
         self.flush_every = flush_every
         self.prediction_every = prediction_every
         self._next_flush = flush_every
@@ -178,14 +177,8 @@ class RunLogger:
         stamps are taken now: the messages are encoded from ``rec`` at the next flush (``rec`` must not change
         until then; ``closed_loop``'s records do not)."""
         ns = _ns(rec.t)
-        if self._queue is None:   # _put twice, inline: this runs between control steps, with cold caches
-            seq = self._seq
-            s, u = seq["/step"], seq["/timing"]
-            seq["/step"], seq["/timing"] = s + 1, u + 1
-            self._pending += ((self._step_ch, s, ns, rec, _step_json), (self._timing_ch, u, ns, rec, _timing_json))
-        else:
-            self._put("/step", ns, rec, _step_json)
-            self._put("/timing", ns, rec, _timing_json)
+        self._put("/step", ns, rec, _step_json)
+        self._put("/timing", ns, rec, _timing_json)
         if (self.prediction_every and control_step is not None and control_step.predicted is not None
                 and model is not None and rec.k % self.prediction_every == 0):
             Z = control_step.predicted
