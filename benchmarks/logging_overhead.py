@@ -3,18 +3,20 @@
 Runs the same closed loop without a log, with the per-step RunLogger (flush every simulated second), and with
 the LMPC's predicted horizon logged every 20 steps (the default) or 10 steps too (an extra exact rollout each
 time), with the chunks compressed in the loop's thread instead of McapFile's compression thread
-(``RunLogger(compress_thread=False)``), and with the writer thread (``RunLogger(background=True)``: the loop only
-queues each message, the thread encodes and writes them at each flush while the loop is in the GIL-free rollout
-kernels; measured slower here, so kexp does not use it), interleaved, and prints the median wall times and their
-ratio.  Wall-time ratios between runs carry the machine's noise (a few % on a shared 2-core VM), so the cost of
-logging is also timed directly inside each run: the time spent in the logging callback and in close() (with the
-writer thread: the queueing and the wait for the thread's last messages; with the compression thread: the wait
-for the last chunk), plus the exact rollouts the LMPC makes only to log its prediction (kexp.control.lmpc's
-rollout and rollout_poly, wrapped here; in RTI mode nothing else calls them), as a share of the no-log run time.
-The direct measure of the thread modes does not see the threads' competition for the GIL and the cores; the
-wall-time column does.  One BLAS thread.
+(``RunLogger(compress_thread=False)``), and with the writer thread (``RunLogger(background=True)``: each flush
+hands the loop's records to the thread, which encodes and writes them while the loop runs on, holding the GIL
+but for the loop's compiled kernels), interleaved, and prints the median wall times and their ratio, and the
+median over the repeats of each run's ratio to the no-log run of the same repeat (paired: the machine's slow
+drifts cancel).  Wall-time ratios between runs carry the machine's noise (a few % on a shared 2-core VM, at times
+more than the logging), so the cost of logging is also timed directly inside each run: the time spent in the
+logging callback and in close() (with the writer thread: the hand-over and the wait for the thread's last batch;
+with the compression thread: the wait for the last chunk), plus the exact rollouts the LMPC makes only to log its
+prediction (kexp.control.lmpc's rollout and rollout_poly, wrapped here; in RTI mode nothing else calls them), as
+a share of the no-log run time.  The direct measure of the thread modes does not see the threads' competition
+for the GIL and the cores; the wall-time columns do.  One BLAS thread.  ``--breakdown N``: then N runs at the
+defaults with the logging's pieces timed one by one (encoding, framing, chunk hand-over, close, rollouts).
 
-    python benchmarks/logging_overhead.py [--repeat 7]
+    python benchmarks/logging_overhead.py [--repeat 7] [--breakdown 9]
 """
 import os
 
@@ -42,6 +44,8 @@ from kexp.systems import VanDerPol  # noqa: E402
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=7)
+    p.add_argument("--breakdown", type=int, default=0, metavar="N",
+                   help="then N more runs at the defaults with the logging's pieces timed one by one")
     args = p.parse_args()
     s = VanDerPol()
     model = identify(s, collect(s, Circle(100, 2.5), DataConfig(T=10.0)), Monomials(2, 5))
@@ -98,13 +102,66 @@ def main():
     base = np.median(times["no log"])
     print(f"closed loop, Van der Pol, LMPC (RTI), {sim.n_steps} steps, {args.repeat} interleaved repeats "
           "(order rotated), one BLAS thread\n")
-    print("| mode | median wall time [s] | min [s] | wall-time overhead vs no log | logging time inside the run "
-          "[ms] | per step [µs] | direct overhead |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
+    print("| mode | median wall time [s] | min [s] | wall-time overhead vs no log | paired | logging time inside the "
+          "run [ms] | per step [µs] | direct overhead |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for mode, ts in times.items():
         med, ins = np.median(ts), np.median(inside[mode])
-        print(f"| {mode} | {med:.3f} | {np.min(ts):.3f} | {100 * (med / base - 1):+.1f} % | {1e3 * ins:.1f} | "
-              f"{1e6 * ins / sim.n_steps:.1f} | {100 * ins / base:.1f} % |")
+        paired = np.median(np.array(ts) / np.array(times["no log"]))   # each repeat against its own no-log run
+        print(f"| {mode} | {med:.3f} | {np.min(ts):.3f} | {100 * (med / base - 1):+.1f} % | "
+              f"{100 * (paired - 1):+.1f} % | {1e3 * ins:.1f} | {1e6 * ins / sim.n_steps:.1f} | "
+              f"{100 * ins / base:.1f} % |")
+    if args.breakdown:
+        breakdown(s, model, clf, h, x0, sim, args.breakdown)
+
+
+def breakdown(s, model, clf, h, x0, sim, repeat):
+    """Where the logging's time goes inside a run at the defaults: the pieces wrapped one by one (the wrappers'
+    own cost, ~0.1 µs a call, included), medians over ``repeat`` runs, per step."""
+    import kexp.recording.writer as writer_module
+    from kexp.recording.mcap_file import McapFile
+
+    acc: dict = {}
+
+    def timed(name, fn):
+        def wrapper(*a):
+            t = time.perf_counter()
+            out = fn(*a)
+            acc[name] = acc.get(name, 0.0) + time.perf_counter() - t
+            return out
+        return wrapper
+
+    pieces = [(writer_module, "step_messages", "encoding the /step messages (at the flushes and at close)"),
+              (writer_module, "timing_messages", "encoding the /timing messages"),
+              (writer_module, "prediction_message", "encoding the /prediction messages"),
+              (McapFile, "add_messages", "framing the messages (McapFile.add_messages)"),
+              (McapFile, "flush", "closing a chunk at a flush (hand-over to the compression thread)"),
+              (McapFile, "wait", "close: waiting for the last chunk's compression (zstd level 3)"),
+              (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
+    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in pieces]
+    rows = []
+    try:
+        for owner, name, label in pieces:
+            setattr(owner, name, timed(label, getattr(owner, name)))
+        with tempfile.TemporaryDirectory() as tmp:
+            for i in range(repeat):
+                ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
+                logger = RunLogger(Path(tmp) / f"b{i}.mcap", prediction_every=20)
+                acc.clear()
+                log_step = timed("log_step (all)", logger.log_step)
+                closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
+                            on_step=lambda rec, st: log_step(rec, st, model))
+                timed("close (all)", logger.close)()
+                rows.append(dict(acc))
+    finally:
+        for owner, name, fn in saved:
+            setattr(owner, name, fn)
+    n = sim.n_steps
+    print(f"\nwhere the logging's time goes at the defaults, {repeat} runs, medians per step [µs]\n")
+    print("| piece | per step [µs] |")
+    print("|---|---:|")
+    for name in rows[0]:
+        print(f"| {name} | {1e6 * np.median([r.get(name, 0.0) for r in rows]) / n:.2f} |")
 
 
 if __name__ == "__main__":

@@ -1,26 +1,25 @@
 """RunLogger: one MCAP file per run, written as the run goes, flushed every ``flush_every`` seconds of
 simulated time so a killed run keeps all but its last second.
 
-The file is framed by :class:`~kexp.recording.mcap_file.McapFile` (byte-identical to mcap's Writer, tests), and
-``log_step`` only queues the step's record with its time stamp: its /step and /timing messages are encoded at the
-next flush, in one batch (code that runs faster together than spread between control steps, whose own code evicts
-it from the caches).  Each closed chunk is compressed and written on McapFile's thread (``compress_thread``; zstd
-releases the GIL), while the loop runs its next steps, so a flushed chunk reaches the file about a millisecond
-after the flush.  Measured in ``benchmarks/logging_overhead.py``'s run (the README's logging table; a second run
-in brackets; 24.2 in a third, noisier run): 22.8 (23.5) µs per step at the defaults (plans every 20 steps, the LMPC's rollouts for them
-included) and 19.0 (16.6) µs without plans, where the README's previous round (mcap's Writer, each step encoded
-as it came) had 67.7 and 51.3 µs; 33.9 (30.1) µs at the defaults with ``compress_thread=False``.  Two such runs at
-once on the 2 cores (ad hoc, 15 interleaved repeats each) showed no wall-time cost of the thread: 0.687 / 0.677 s
-median against 0.708 / 0.666 s without it (0.681 / 0.654 s without a log).
+The file is framed by :class:`~kexp.recording.mcap_file.McapFile` (byte-identical to mcap's Writer, tests).
+``log_step`` only keeps the step's record (and its plan, when one is logged); at the next flush the kept steps'
+/step and /timing messages are encoded a kind at a time, each batch in one orjson call
+(:mod:`kexp.recording.steps`, byte-identical to one call per message), code that runs faster together than spread
+between control steps.  Each closed chunk is compressed and written on McapFile's thread (``compress_thread``;
+zstd releases the GIL) while the loop runs its next steps, so a flushed chunk reaches the file about a millisecond
+after the flush.  Other messages (``write``) are encoded at once, in their place among the steps: a write closes
+the segment of steps before it, which takes its sequence numbers then.  Measured in
+``benchmarks/logging_overhead.py`` (the README's logging table): 20.1 µs per step inside the run at the defaults
+(plans every 20 steps, the LMPC's rollouts for them included) and 15.1 µs without plans, against 23.1 and 16.6
+for the previous logger (one message per step encoded at the flush) in the same conditions.
 
-With ``background=True`` the JSON encoding and the MCAP records are written by a writer thread, in the order the
-messages were given (the file is byte-identical to a synchronous one, a test): the control loop only queues each
-message, and the thread encodes and frames them at each flush, which can overlap the loop's code that releases
-the GIL (the LMPC's compiled kernels).  An error on the writer thread is raised by the next ``write`` or by
-``close``, unchanged.  Measured on a 2-core machine it is slower than writing synchronously (+31.1 % wall against
-+1.1 %, 35.1 against 22.8 µs per step in the run: the loop waits for the GIL more than the thread saves), so
-``kexp`` runs write synchronously; the option stays for machines and loops where it pays, and the benchmark keeps
-measuring it.
+With ``background=True`` each flush hands its batch (the kept steps and messages, in order) to a writer thread,
+which encodes and frames it while the loop runs on: the file is byte-identical to a synchronous one (a test), an
+error on the thread is raised in the caller's thread by the next ``write``, flush or ``close``, unchanged.  The
+loop's direct cost then falls to ~7 µs per step, but the encoding still needs the GIL, which the loop waits for
+outside its compiled kernels: in every run so far its wall time was above the synchronous writer's (+8.2 % paired
+against +3.9 %), so ``kexp`` runs write synchronously; the option stays for machines where it pays, and the
+benchmark keeps measuring it.
 """
 from __future__ import annotations
 
@@ -33,6 +32,7 @@ import numpy as np
 
 from .mcap_file import McapFile
 from .schema import CHANNELS, encode
+from .steps import log_times, prediction_message, step_messages, timing_messages
 
 LIBRARY = "kexp-recording/1"   # fixed, so the file bytes do not change with the mcap package version
 
@@ -41,24 +41,26 @@ def _ns(t: float) -> int:
     return int(round(float(t) * 1e9))
 
 
-def _step_json(rec) -> bytes:
-    """A /step message: the record's fields as plain numbers, lists and strings."""
-    t = float(rec.t)
-    u = rec.u
-    x_meas, w = getattr(rec, "x_meas", None), getattr(rec, "w", None)
-    return encode({
-        "k": int(rec.k), "t": t, "x": rec.x.tolist(), "x_meas": (rec.x if x_meas is None else x_meas).tolist(),
-        "z": np.asarray(rec.z).tolist(), "u": u.tolist(),
-        # np.zeros, not np.zeros_like: the same zeros, without zeros_like's ~1 us of dispatch
-        "w": (np.zeros(u.shape, u.dtype) if w is None else np.asarray(w)).tolist(),
-        "V": float(rec.V), "Vdot": float(rec.Vdot), "region": rec.region, "active": rec.active,
-        "binds": bool(rec.binds), "slack": float(rec.slack), "status": rec.status, "qp_status": rec.qp_status,
-        "iterations": int(rec.iterations), "qp_iterations": int(rec.qp_iterations),
-        "fallback": bool(rec.fallback), "reason": rec.reason})
+class _Steps:
+    """A segment of logged steps: the records, their plans and the first sequence number of each of their
+    channels, taken when the segment was closed (so that the writer thread encodes them to the same bytes)."""
 
+    __slots__ = ("recs", "plans", "s0", "t0", "p0")
 
-def _timing_json(rec) -> bytes:
-    return encode({"k": int(rec.k), "t": float(rec.t), "solve_time": float(rec.solve_time)})
+    def __init__(self, recs, plans, s0, t0, p0):
+        self.recs, self.plans, self.s0, self.t0, self.p0 = recs, plans, s0, t0, p0
+
+    def encode(self, out: list, channels: dict) -> None:
+        """Append the segment's messages to ``out`` as McapFile.add_messages takes them, in step order: each
+        step's /step and /timing (:mod:`kexp.recording.steps`, each kind in one batch) and its /prediction."""
+        recs, s0, t0 = self.recs, self.s0, self.t0
+        ch_step, ch_timing, ch_pred = channels["/step"], channels["/timing"], channels["/prediction"]
+        plans = {i: (j, Z, model) for j, (i, Z, model) in enumerate(self.plans)}
+        for i, (ns, step, timing) in enumerate(zip(log_times(recs), step_messages(recs), timing_messages(recs))):
+            out += ((ch_step, s0 + i, ns, ns, step), (ch_timing, t0 + i, ns, ns, timing))
+            if i in plans:
+                j, Z, model = plans[i]
+                out.append((ch_pred, self.p0 + j, ns, ns, prediction_message(recs[i], Z, model)))
 
 
 class RunLogger:
@@ -89,9 +91,11 @@ class RunLogger:
         self.prediction_every = prediction_every
         self._next_flush = flush_every
         self._closed = False
-        # messages waiting for the next flush: (channel, sequence, log time, data, encoder); data is encoded
-        # (encoder None) or turned into bytes by encoder(data) at the flush
+        # what waits for the next flush, in file order: messages as McapFile.add_messages takes them (their data
+        # a payload still to encode with background=True) and _Steps segments; the steps since the last segment
         self._pending: list = []
+        self._steps: list = []     # step records (encoded at the flush, in one batch)
+        self._plans: list = []     # (index in _steps, predicted Z, model) of the steps whose plan is logged
         self._queue: queue.SimpleQueue | None = None
         self._error: BaseException | None = None
         if background:
@@ -101,50 +105,65 @@ class RunLogger:
 
     def write(self, topic: str, t: float, payload: dict) -> None:
         """Add one message (numpy values welcome: :func:`~kexp.recording.schema.encode` converts them)."""
-        if self._queue is None:   # encoded now: the payload may change after this call
-            self._put(topic, _ns(t), encode(payload), None)
-        else:
-            self._put(topic, _ns(t), payload, encode)
-
-    def _put(self, topic: str, ns: int, data, encoder) -> None:
         channel = self._ch[topic]          # an unknown topic raises KeyError here, in the caller's thread
+        self._raise_thread_error()
+        if self._steps:                    # the steps logged before it go first
+            self._seal_steps()
         seq = self._seq[topic]
         self._seq[topic] = seq + 1
-        if self._queue is None:
-            self._pending.append((channel, seq, ns, data, encoder))
-            return
-        self._raise_thread_error()
-        self._queue.put((channel, seq, ns, data, encoder))
+        ns = _ns(t)
+        # encoded now (the payload may change after this call), or by the writer thread
+        self._pending.append((channel, seq, ns, ns, encode(payload) if self._queue is None else payload))
 
-    def _write_pending(self) -> None:
-        """Encode what waits (in one batch: code that runs faster together than spread between control steps,
-        whose own code evicts it from the caches) and frame it."""
-        self._w.add_messages([(channel, seq, ns, ns, data if encoder is None else encoder(data))
-                              for channel, seq, ns, data, encoder in self._pending])
-        self._pending.clear()
+    def _seal_steps(self) -> None:
+        """Close the segment of the steps logged since the last one, with its sequence numbers taken now."""
+        recs, plans, seq = self._steps, self._plans, self._seq
+        self._steps, self._plans = [], []
+        self._pending.append(_Steps(recs, plans, seq["/step"], seq["/timing"], seq["/prediction"]))
+        seq["/step"] += len(recs)
+        seq["/timing"] += len(recs)
+        seq["/prediction"] += len(plans)
+
+    def _frame(self, batch: list) -> None:
+        """Encode what a flush handed over (each segment's steps in one batch: code that runs faster together than
+        spread between control steps, whose own code evicts it from the caches) and frame it."""
+        messages = []
+        for item in batch:
+            if type(item) is _Steps:
+                item.encode(messages, self._ch)
+            elif isinstance(item[4], bytes):
+                messages.append(item)
+            else:
+                messages.append(item[:4] + (encode(item[4]),))
+        self._w.add_messages(messages)
+
+    def _take_batch(self) -> list:
+        if self._steps:
+            self._seal_steps()
+        batch, self._pending = self._pending, []
+        return batch
 
     def _flush(self) -> None:
+        batch = self._take_batch()
         if self._queue is None:
-            self._write_pending()
+            self._frame(batch)
             self._w.flush()
         else:
-            self._queue.put(None)
+            self._raise_thread_error()
+            self._queue.put(batch)
 
     def _drain(self) -> None:
-        """The writer thread: collects the messages and, at each flush (None), encodes and writes them, until the
-        stop mark (False); what waits then is written by close() or abandon()."""
+        """The writer thread: frames each batch a flush hands over and flushes the file, until the stop mark
+        (None); after an error it keeps taking batches (so that close() is not blocked) and writes no more."""
         while True:
-            item = self._queue.get()
-            if item is False:
+            batch = self._queue.get()
+            if batch is None:
                 return
             if self._error is not None:
-                continue               # keep draining so that close() is not blocked; the error is raised there
+                continue
             try:
-                if item is None:
-                    self._write_pending()
-                    self._w.flush()
-                else:
-                    self._pending.append(item)
+                self._frame(batch)
+                self._w.flush()
             except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread unchanged
                 self._error = exc
 
@@ -173,18 +192,13 @@ class RunLogger:
                                  "boundary_r_hat": [] if boundary_r_hat is None else boundary_r_hat})
 
     def log_step(self, rec, control_step=None, model=None) -> None:
-        """Log one control step (/step, /timing; /prediction every ``prediction_every`` steps).  Only the time
-        stamps are taken now: the messages are encoded from ``rec`` at the next flush (``rec`` must not change
-        until then; ``closed_loop``'s records do not)."""
-        ns = _ns(rec.t)
-        self._put("/step", ns, rec, _step_json)
-        self._put("/timing", ns, rec, _timing_json)
+        """Log one control step (/step, /timing; /prediction every ``prediction_every`` steps).  The record is
+        only kept now: its messages are encoded at the next flush, with the other steps' (``rec`` and the control
+        step's prediction must not change until then; ``closed_loop``'s do not)."""
         if (self.prediction_every and control_step is not None and control_step.predicted is not None
                 and model is not None and rec.k % self.prediction_every == 0):
-            Z = control_step.predicted
-            self._put("/prediction", ns, {"k": rec.k, "t": rec.t,   # new arrays: encoded at the flush
-                                           "t_pred": rec.t + model.dt * np.arange(len(Z)),
-                                           "x_pred": model.to_state(Z)}, encode)
+            self._plans.append((len(self._steps), control_step.predicted, model))
+        self._steps.append(rec)
         if rec.t + 1e-12 >= self._next_flush:
             self._flush()
             self._next_flush += self.flush_every
@@ -213,7 +227,7 @@ class RunLogger:
         try:
             self._stop_thread()
             self._raise_thread_error()
-            self._write_pending()
+            self._frame(self._take_batch())
             self._w.finish()
         finally:
             self._w.stop()
@@ -227,8 +241,9 @@ class RunLogger:
         self._closed = True
         try:
             self._stop_thread()
-            self._write_pending()
-            self._w.flush()
+            if self._error is None:
+                self._frame(self._take_batch())
+                self._w.flush()
         except BaseException:  # noqa: BLE001 - the run's own exception is the one to report
             pass
         finally:
@@ -237,7 +252,7 @@ class RunLogger:
 
     def _stop_thread(self) -> None:
         if self._queue is not None and self._thread.is_alive():
-            self._queue.put(False)
+            self._queue.put(None)
             self._thread.join()
 
     def __enter__(self):
