@@ -14,7 +14,9 @@ h = the model's LQR gain, |u| ≤ 5):
 
 For each model and horizon Np ∈ {50, 100, 200} (move blocking: 5 free moves, 20 blocks — the QP has 20·m + 1
 variables whatever the horizon), the RTI LMPC runs the closed loop on the true system from 3 initial conditions
-(default_rng(0), within ±0.8 of x_eq) for --T seconds; the table gives the median and p99 of the step time
+(default_rng(0), within ±0.8 of x_eq) for --T seconds, and the whole grid is measured --repeats times, cells
+interleaved and the order rotated each pass (a shared VM's speed drifts by tens of per cent within a minute); the
+table gives the median over the passes of each pass's median step time and the p99 of all the passes' step times
 (``ControlStep.solve_time``, the first step of each run left out), the memory a step holds
 (``kexp.control.memory.memory_estimate``, the model the memory budget uses), and the growth exponents fitted by least
 squares on log-log axes: time ∝ k^a at Np = 100 (one input; over the models that form a block's map the same way,
@@ -23,7 +25,7 @@ way each model forms the ZOH map of a block: the polynomial in u (:mod:`kexp.con
 its degree stays ≤ 40 on |u| ≤ 5) or the matrix exponential and its Fréchet derivatives.  A plot of the medians
 goes to --plot (default docs/figures/lmpc_scaling.png).  One BLAS thread.
 
-    python benchmarks/scaling.py [--T 3] [--plot docs/figures/lmpc_scaling.png]
+    python benchmarks/scaling.py [--T 3] [--repeats 3] [--plot docs/figures/lmpc_scaling.png]
 """
 from __future__ import annotations
 
@@ -88,19 +90,26 @@ def build(system, degree: int, n_traj: int):
 
 
 def measure(system, model, clf, law, horizon: int, T: float) -> dict:
+    """One pass over a cell: 3 closed-loop runs; the step times [ms] (first step of each run left out)."""
     cfg = LmpcConfig(horizon=horizon, terminal=1.0)
     ctrl = Lmpc(model, clf, law, cfg, -5.0, 5.0)
     rng = np.random.default_rng(0)
-    times, costs = [], []
+    times = []
     for _ in range(3):
         x0 = system.equilibrium + rng.uniform(-0.8, 0.8, system.n)
         run = closed_loop(system, ctrl, x0, SimConfig(T=T), model=model, lyap=clf.lyap)
         times += [r.solve_time for r in run.records[1:]]
-        costs.append(run.metrics.cost)
-    t = np.array(times) * 1e3
     path = f"polynomial, degree {ctrl.zoh.degree}" if ctrl.zoh is not None else "expm + Fréchet per block"
-    return {"median": float(np.median(t)), "p99": float(np.percentile(t, 99)), "steps": t.size,
-            "mem": memory_estimate(cfg, model.k, model.m), "nu": ctrl.nu, "path": path}
+    return {"times": np.array(times) * 1e3, "mem": memory_estimate(cfg, model.k, model.m), "nu": ctrl.nu,
+            "path": path}
+
+
+def summarise(passes: list[dict]) -> dict:
+    """The median over the passes of each pass's median, the p99 of all the passes' step times."""
+    pooled = np.concatenate([p["times"] for p in passes])
+    return {**passes[0], "median": float(np.median([np.median(p["times"]) for p in passes])),
+            "p99": float(np.percentile(pooled, 99)), "spread": (min(np.median(p["times"]) for p in passes),
+                                                             max(np.median(p["times"]) for p in passes))}
 
 
 def slope(x, y) -> float:
@@ -110,6 +119,7 @@ def slope(x, y) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--T", type=float, default=3.0, help="simulated seconds per run (3 runs per cell)")
+    ap.add_argument("--repeats", type=int, default=3, help="passes over the whole grid, interleaved")
     ap.add_argument("--plot", default="docs/figures/lmpc_scaling.png", help="the PNG ('' for none)")
     args = ap.parse_args(argv)
     load0 = os.getloadavg()
@@ -117,23 +127,33 @@ def main(argv=None) -> int:
              ("lagged Van der Pol, 3 states, degree 4", LaggedVanDerPol(), 4, 200),
              ("lagged Van der Pol, 3 states, degree 5", LaggedVanDerPol(), 5, 300),
              ("slow manifold, 2 states, degree 5, both actuated", SlowManifold(inputs="both"), 5, 100)]
-    rows, results = [], {}
+    built = {}
     for label, system, degree, n_traj in cases:
         t0 = time.perf_counter()
-        model, clf, law = build(system, degree, n_traj)
+        built[label] = (system, *build(system, degree, n_traj))
+        model = built[label][1]
         print(f"[{label}: k = {model.k}, m = {model.m}, built in {time.perf_counter() - t0:.1f} s]", flush=True)
-        for horizon in HORIZONS:
-            r = measure(system, model, clf, law, horizon, args.T)
-            results[(label, horizon)] = (model.k, model.m, r)
+    cells = [(label, horizon) for label, *_ in cases for horizon in HORIZONS]
+    passes: dict = {cell: [] for cell in cells}
+    for rep in range(args.repeats):
+        t0 = time.perf_counter()
+        shift = rep * len(cells) // max(args.repeats, 1)
+        for label, horizon in cells[shift:] + cells[:shift]:
+            system, model, clf, law = built[label]
+            passes[(label, horizon)].append(measure(system, model, clf, law, horizon, args.T))
+        print(f"[pass {rep + 1}/{args.repeats} in {time.perf_counter() - t0:.1f} s]", flush=True)
+    results = {(label, h): (built[label][1].k, built[label][1].m, summarise(passes[(label, h)]))
+               for label, h in cells}
     print(f"\n- date {time.strftime('%Y-%m-%d %H:%M')}; {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs; load average {load0[0]:.2f} at the start, {os.getloadavg()[0]:.2f} at the end; "
-          f"one BLAS thread; RTI, 5 free moves / 20 blocks, {args.T:g} s × 3 runs per cell\n")
+          f"one BLAS thread; RTI, 5 free moves / 20 blocks, {args.T:g} s × 3 runs per cell and pass, "
+          f"{args.repeats} passes\n")
     print("| model | k | m | ZOH map per block | horizon | QP variables | step median [ms] | p99 [ms] | "
-          "memory of a step [kB] |")
-    print("|---|---:|---:|---|---:|---:|---:|---:|---:|")
+          "passes' medians [ms] | memory of a step [kB] |")
+    print("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|")
     for (label, horizon), (k, m, r) in results.items():
         print(f"| {label} | {k} | {m} | {r['path']} | {horizon} | {r['nu'] + 1} | {r['median']:.3f} | "
-              f"{r['p99']:.3f} | {r['mem'] / 1e3:.0f} |")
+              f"{r['p99']:.3f} | {r['spread'][0]:.3f}–{r['spread'][1]:.3f} | {r['mem'] / 1e3:.0f} |")
     print()
     one = [(k, r["median"], r["path"]) for (label, h), (k, m, r) in results.items() if h == 100 and m == 1]
     poly = [(k, t) for k, t, path in one if path.startswith("polynomial")]

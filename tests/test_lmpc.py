@@ -8,7 +8,7 @@ from kexp.clf import ClfConfig, synthesize_clf
 from kexp.control import ExplicitController, Lmpc, LmpcConfig, make_law
 from kexp.control.blocking import block_of_step, block_sizes
 from kexp.control.condense import block_maps_expm, block_maps_poly, condense
-from kexp.control.kernels import expm_frechet, rollout, rollout_poly, rollout_sensitivity
+from kexp.control.kernels import expm_frechet, expm_frechet_pade, rollout, rollout_poly, rollout_sensitivity
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import series_expm, zoh_degree, zoh_polynomial
 from kexp.data import Circle, DataConfig, collect
@@ -132,6 +132,25 @@ def test_expm_frechet_is_the_van_loan_block():
         big = sla.expm(np.block([[M, D], [np.zeros((9, 9)), M]]))
         assert np.max(np.abs(E - big[:9, :9])) <= 1e-13 * np.max(np.abs(big[:9, :9]))
         assert np.max(np.abs(L - big[:9, 9:])) <= 1e-13 * np.max(np.abs(big[:9, 9:]))
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+def test_expm_frechet_pade_is_the_van_loan_block(m):
+    """The several-direction Padé kernel of the general path: expm(M) and each Fréchet derivative against the Van
+    Loan block exponential, from tiny generators to ‖M‖ ~ 100 (a two-input model's at |u| = 5); measured ≤ 1.2e-13
+    where expm_frechet (Taylor) reaches 6.6e-13."""
+    rng = np.random.default_rng(5 + m)
+    n = 22
+    for scale in (0.01, 0.5, 3.0, 40.0, 150.0):
+        M = rng.standard_normal((n, n)) * scale / np.sqrt(n)
+        D = rng.standard_normal((m, n, n))
+        E, L = np.empty((n, n)), np.empty((m, n, n))
+        expm_frechet_pade(M, D, E, L)
+        for i in range(m):
+            big = sla.expm(np.block([[M, D[i]], [np.zeros((n, n)), M]]))
+            tol = 1e-14 if scale < 1 else 1e-12
+            assert np.max(np.abs(E - big[:n, :n])) <= tol * np.max(np.abs(big[:n, :n]))
+            assert np.max(np.abs(L[i] - big[:n, n:])) <= tol * np.max(np.abs(big[:n, n:]))
 
 
 def test_zoh_polynomial_declines_what_it_cannot_do(vdp):

@@ -3,7 +3,7 @@
 The input is constant within a move block, so the exact zero-order-hold map E_b (k+1, k+1) of block b and its
 derivatives L_b,i = ∂E_b/∂u_i are formed once per block (:func:`block_maps_poly` from the polynomial of
 :mod:`kexp.control.zoh_poly` for one input, with the degree each block's input needs; :func:`block_maps_expm` from
-the exponential and its Fréchet derivatives for any number of inputs).  :func:`condense` then steps through the
+the exponential and its Fréchet derivatives for any number of inputs, by Padé).  :func:`condense` then steps through the
 horizon once,
 
     z_{j+1} = (E_b [z_j; 1])[:k],     s_c(j+1) = A_b s_c(j)  (+ (L_b,i [z_j; 1])[:k] for block b's own columns),
@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .kernels import _augmented, _directions, expm_frechet, poly_degree
+from .kernels import _augmented, _directions, expm_frechet, expm_frechet_pade, poly_degree
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
@@ -78,13 +78,11 @@ def block_maps_poly(coef, norms, rho, lam, B, b, dt, U, E, L):
 @njit(cache=True, nogil=True)
 def block_maps_expm(lam, B, b, dt, U, E, L):
     """E[c] ← expm(M_c) and L[c, i] ← its Fréchet derivative along [[B_i, b_i], [0, 0]]Δ for every block c and
-    input i, M_c = [[Λ + Σ_i U[c, i] B_i, Σ_i U[c, i] b_i], [0, 0]]Δ: any number of inputs, any input size."""
-    m = B.shape[0]
+    input i, M_c = [[Λ + Σ_i U[c, i] B_i, Σ_i U[c, i] b_i], [0, 0]]Δ: any number of inputs, any input size
+    (:func:`kexp.control.kernels.expm_frechet_pade`, the exponential's work shared by the inputs)."""
     D = _directions(B, b, dt)
     for blk in range(U.shape[0]):
-        M = _augmented(lam, B, b, U[blk], dt)
-        for i in range(m):
-            expm_frechet(M, D[i], E[blk], L[blk, i])
+        expm_frechet_pade(_augmented(lam, B, b, U[blk], dt), D, E[blk], L[blk])
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})

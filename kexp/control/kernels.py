@@ -273,6 +273,72 @@ def expm_frechet(M, D, E, L):
         E[:, :] = E @ E
 
 
+PADE13 = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0, 129060195264000.0,
+          10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0, 40840800.0, 960960.0, 16380.0, 182.0, 1.0)
+THETA13 = 5.371920351148152   # the 1-norm up to which the [13/13] Padé approximant is exact to rounding
+
+
+@njit(cache=True)
+def expm_frechet_pade(M, D, E, L):
+    """E ← expm(M) and L[i] ← its Fréchet derivative along D[i] for every direction i (D, L (m, n, n)), by
+    scaling and squaring of the [13/13] Padé approximant and its derivative (Al-Mohy and Higham, SIAM J. Matrix
+    Anal. Appl. 30(4), 2009, Algorithm 6.4, degree 13 only): the powers and the Padé numerator and denominator
+    are shared by the directions (13 products per direction, their right-hand sides solved together, one LU for
+    all), and 2^s = ‖M‖₁/θ₁₃ rounded up instead of ‖M‖∞/0.5: on a two-input model's generators (‖M‖₁ ~ 30–300)
+    1.7× faster than m calls of :func:`expm_frechet`, which repeat expm(M)'s own products per direction and square
+    ~3 more times (benchmarks/expm_maps.py), and as accurate or more against the Van Loan block
+    (tests/test_lmpc.py)."""
+    n = M.shape[0]
+    m = D.shape[0]
+    b = PADE13
+    nrm = 0.0
+    for c in range(n):
+        col = 0.0
+        for r in range(n):
+            col += abs(M[r, c])
+        nrm = max(nrm, col)
+    s = 0
+    while nrm > THETA13:
+        nrm *= 0.5
+        s += 1
+    sc = 0.5 ** s
+    A = M * sc
+    ident = np.eye(n)
+    A2 = A @ A
+    A4 = A2 @ A2
+    A6 = A2 @ A4
+    W1 = b[13] * A6 + b[11] * A4 + b[9] * A2
+    W2 = b[7] * A6 + b[5] * A4 + b[3] * A2 + b[1] * ident
+    Z1 = b[12] * A6 + b[10] * A4 + b[8] * A2
+    Z2 = b[6] * A6 + b[4] * A4 + b[2] * A2 + b[0] * ident
+    W = A6 @ W1 + W2
+    U = A @ W
+    V = A6 @ Z1 + Z2
+    Q = V - U
+    R = np.ascontiguousarray(np.linalg.solve(Q, V + U))
+    rhs = np.empty((n, m * n))             # every direction's right-hand side: one more LU for all of them
+    for i in range(m):
+        Ei = D[i] * sc
+        M2 = A @ Ei + Ei @ A
+        M4 = A2 @ M2 + M2 @ A2
+        M6 = A4 @ M2 + M4 @ A2
+        Lw = A6 @ (b[13] * M6 + b[11] * M4 + b[9] * M2) + M6 @ W1 + (b[7] * M6 + b[5] * M4 + b[3] * M2)
+        Lu = A @ Lw + Ei @ W
+        Lv = A6 @ (b[12] * M6 + b[10] * M4 + b[8] * M2) + M6 @ Z1 + (b[6] * M6 + b[4] * M4 + b[2] * M2)
+        rhs[:, i * n:(i + 1) * n] = Lu + Lv + (Lu - Lv) @ R
+    X = np.linalg.solve(Q, rhs)
+    Ls = np.empty((m, n, n))
+    for i in range(m):
+        Ls[i] = X[:, i * n:(i + 1) * n]
+    for _ in range(s):
+        for i in range(m):
+            Li = Ls[i]
+            Ls[i] = R @ Li + Li @ R
+        R = R @ R
+    E[:, :] = R
+    L[:, :, :] = Ls
+
+
 @njit(cache=True)
 def poly_degree(norms, v, top):
     """The lowest degree D ≤ ``top`` at which the polynomial Σ_d C_d v^d (‖C_d‖∞ = norms[d]) and its derivative
