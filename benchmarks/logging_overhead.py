@@ -1,26 +1,30 @@
-"""How much MCAP logging adds to a closed-loop run (Van der Pol, LMPC, 10 s = 1000 steps).
+"""How much MCAP logging adds to a closed-loop run (Van der Pol, LMPC, 10 s = 1000 steps; --T for longer runs).
 
 Runs the same closed loop without a log, with the per-step RunLogger (flush every simulated second), and with
 the LMPC's predicted horizon logged every 20 steps (the default) or 10 steps too (an extra exact rollout each
 time), with the chunks compressed in the loop's thread instead of McapFile's compression thread
-(``RunLogger(compress_thread=False)``), and with the writer thread (``RunLogger(background=True)``: each flush
-hands the loop's records to the thread, which encodes and writes them while the loop runs on, holding the GIL
-but for the loop's compiled kernels), interleaved, and prints the median wall times and their ratio, and the
-median over the repeats of each run's ratio to the no-log run of the same repeat (paired: the machine's slow
-drifts cancel).  Wall-time ratios between runs carry the machine's noise (a few % on a shared 2-core VM, at times
-more than the logging), so the cost of logging is also timed directly inside each run: the time spent in the
-logging callback and in close() (with the writer thread: the hand-over and the wait for the thread's last batch;
-with the compression thread: the wait for the last chunk), plus the exact rollouts the LMPC makes only to log its
-prediction (kexp.control.lmpc's rollout and rollout_poly, wrapped here; in RTI mode nothing else calls them), as
-a share of the no-log run time.  The direct measure of the thread modes does not see the threads' competition
-for the GIL and the cores; the wall-time columns do.  One BLAS thread.  ``--breakdown N``: then N runs at the
-defaults with the logging's pieces timed one by one (encoding, framing, chunk hand-over, close, rollouts).
+(``RunLogger(compress_thread=False)``), with the writer thread (``RunLogger(background=True)``: each flush hands
+the loop's records to the thread, which encodes and writes them while the loop runs on, holding the GIL but for
+the loop's compiled kernels), and with the writer process (``ProcessRunLogger``, ``logging.writer=process``: every
+100 steps the records are packed and handed to a child process that encodes, frames and compresses them),
+interleaved, and prints the median wall times and their ratio, and the median over the repeats of each run's
+ratio to the no-log run of the same repeat (paired: the machine's slow drifts cancel).  Wall-time ratios between
+runs carry the machine's noise (a few % on a shared 2-core VM, at times more than the logging), so the cost of
+logging is also timed directly inside each run: the logger's start (opening the file; for the writer process
+also starting it, a fork and exec here while the child's ~0.2 s of imports run on the other core), the logging
+callback and close() (with the writer thread: the hand-over and the wait for the thread's last batch; with the
+compression thread: the wait for the last chunk; with the writer process: the wait for the child to finish the
+file), plus the exact rollouts the LMPC makes only to log its prediction (kexp.control.lmpc's rollout and
+rollout_poly, wrapped here; in RTI mode nothing else calls them), as a share of the no-log run time.  The direct
+measure of the thread modes does not see the threads' competition for the GIL and the cores; the wall-time
+columns do.  One BLAS thread.  ``--breakdown N``: then N runs at the defaults with the logging's pieces timed one
+by one (encoding, framing, chunk hand-over, close, rollouts).
 Logging also costs the loop indirectly: its encoding evicts the loop's data from the caches, and a writer thread
 holds the GIL when the loop's kernels return.  So the time in the LMPC's compiled kernels (condense and the block
 maps, which log nothing) is timed too, with the loop thread's CPU time: their growth over the no-log run is that
 indirect cost.
 
-    python benchmarks/logging_overhead.py [--repeat 7] [--breakdown 9]
+    python benchmarks/logging_overhead.py [--repeat 7] [--T 10] [--breakdown 9]
 """
 import os
 
@@ -40,6 +44,7 @@ from kexp.control import Lmpc, LmpcConfig, make_law  # noqa: E402
 from kexp.data import Circle, DataConfig, collect  # noqa: E402
 from kexp.dictionary import Monomials  # noqa: E402
 from kexp.identify import identify  # noqa: E402
+from kexp.recording.process_log import ProcessRunLogger  # noqa: E402
 from kexp.recording.writer import RunLogger  # noqa: E402
 from kexp.simulate import SimConfig, closed_loop  # noqa: E402
 from kexp.systems import VanDerPol  # noqa: E402
@@ -48,6 +53,7 @@ from kexp.systems import VanDerPol  # noqa: E402
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=7)
+    p.add_argument("--T", type=float, default=10.0, help="simulated seconds per run (100 steps per second)")
     p.add_argument("--breakdown", type=int, default=0, metavar="N",
                    help="then N more runs at the defaults with the logging's pieces timed one by one")
     args = p.parse_args()
@@ -56,14 +62,15 @@ def main():
     clf = synthesize_clf(model, ClfConfig())
     h = make_law("sontag", clf.lyap, -5.0, 5.0)
     x0 = np.array([0.7, -0.5])
-    sim = SimConfig(T=10.0)
+    sim = SimConfig(T=args.T)
     # mode -> (prediction_every, writer thread, compression thread)
     every = {"no log": (0, False, True), "MCAP log": (0, False, True),
              "MCAP log + predictions every 20 steps (the default, what kexp runs)": (20, False, True),
              "MCAP log + predictions every 10 steps": (10, False, True),
              "MCAP log + predictions every 20 steps, chunks compressed in the loop's thread "
              "(RunLogger(compress_thread=False))": (20, False, False),
-             "MCAP log + predictions every 20 steps, writer thread (RunLogger(background=True))": (20, True, True)}
+             "MCAP log + predictions every 20 steps, writer thread (RunLogger(background=True))": (20, True, True),
+             "MCAP log + predictions every 20 steps, writer process (ProcessRunLogger)": (20, "process", True)}
     times = {mode: [] for mode in every}
     inside = {mode: [] for mode in times}     # seconds spent on logging inside the run
     spent = [0.0]
@@ -105,11 +112,17 @@ def main():
             for mode in modes[i % len(modes):] + modes[: i % len(modes)]:  # rotate the order: no mode always first
                 pred, background, compress_thread = every[mode]
                 ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=pred)
-                logger = (RunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred, background=background,
-                                    compress_thread=compress_thread) if mode != "no log" else None)
-                cb = logged(logger) if logger else None
                 spent[0] = kern[0] = 0.0
-                t0, c0 = time.perf_counter(), time.thread_time()
+                t0, c0 = time.perf_counter(), time.thread_time()    # the logger's start counts
+                if mode == "no log":
+                    logger = None
+                elif background == "process":
+                    logger = ProcessRunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred)
+                else:
+                    logger = RunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred, background=background,
+                                       compress_thread=compress_thread)
+                cb = logged(logger) if logger else None
+                spent[0] += time.perf_counter() - t0
                 closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap, on_step=cb)
                 if logger:
                     t1 = time.perf_counter()

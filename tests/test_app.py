@@ -118,6 +118,7 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path):
     ("+controller.lmpc.foo=1", "controller.lmpc.foo: unknown key"),
     ("controller.kind=mpc", "controller.kind='mpc'"),
     ("logging.prediction_every=-1", "logging.prediction_every=-1"),
+    ("logging.writer=thread", "logging.writer='thread'; valid: sync"),
 ])
 def test_bad_controller_settings_are_named(tmp_path, override, needle):
     cfg = _compose(SMALL + [override])

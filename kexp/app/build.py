@@ -354,6 +354,9 @@ def build_logging(cfg: Mapping[str, Any]) -> dict:
         raise ConfigError(f"logging.flush_every={out['flush_every']}: use seconds > 0")
     if out["progress"] not in ("auto", True, False):
         raise ConfigError(f"logging.progress={out['progress']!r}; valid: auto, true, false")
+    if out["writer"] not in ("sync", "process"):
+        raise ConfigError(f"logging.writer={out['writer']!r}; valid: sync (in the run's process), process (a child "
+                          "process encodes and writes the log)")
     if out["rrd"] and not out["mcap"]:
         raise ConfigError("logging.rrd=true needs logging.mcap=true (the recording is rendered from the log)")
     return out

@@ -20,6 +20,7 @@ from ..data.streaming import bounds as data_bounds
 from ..errors import ConfigError, KexpError
 from ..identify import identify
 from ..recording.schema import plain
+from ..recording.process_log import ProcessRunLogger
 from ..recording.writer import RunLogger
 from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
@@ -61,9 +62,13 @@ def _to_dict(cfg: Any) -> dict:
 
 
 def config_dict(cfg: Any) -> dict:
-    """The composed config as plain data, as logged, hashed and keyed: without ``hydra``, and with the system's
-    params those that apply to ``system.name`` (:func:`~kexp.app.build.system_settings`)."""
+    """The composed config as plain data, as logged, hashed and keyed: without ``hydra``, without
+    ``logging.writer`` (how the log is written, not what: the bytes are the same either way, so a run's hash and
+    logged config do not depend on it), and with the system's params those that apply to ``system.name``
+    (:func:`~kexp.app.build.system_settings`)."""
     out = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    if isinstance(out.get("logging"), dict):
+        out["logging"] = {k: v for k, v in out["logging"].items() if k != "writer"}
     if "system" in out:
         out["system"] = system_settings(out["system"])
     return out
@@ -107,8 +112,9 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``.
     ``echo`` receives the printed lines; ``auto_progress`` is what ``logging.progress=auto`` means (None: a bar
     when stderr is a terminal; a sweep job passes False, its bars would overwrite each other).  The log is written
-    synchronously: RunLogger's writer thread measured slower on this 2-core machine, with and without a free core
-    (benchmarks/logging_overhead.py)."""
+    in this process (``logging.writer=sync``; RunLogger's writer thread measured slower on this 2-core machine) or
+    by a child process (``process``: the same bytes, less of the run's time for runs of 10 s and more;
+    benchmarks/logging_overhead.py)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -186,8 +192,9 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     phase("controller_s")   # includes loading the compiled kernels (numba's cache) on a worker's first job
     logger = None
     if log_cfg["mcap"]:
-        logger = RunLogger(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
-                           prediction_every=log_cfg["prediction_every"])
+        writer = ProcessRunLogger if log_cfg["writer"] == "process" else RunLogger
+        logger = writer(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
+                        prediction_every=log_cfg["prediction_every"])
         logger.log_config(cfg_dict, chash)
         logger.log_model(model)
         omega_r = level_set_boundary(model, clf.lyap, clf.r)

@@ -100,6 +100,7 @@ class LoggingSchema:
     prediction_every: int = 20        # the LMPC's predicted horizon every k steps; 0: never
     flush_every: float = 1.0          # seconds of simulated time between flushes
     progress: Any = "auto"            # auto | true | false
+    writer: str = "sync"              # sync | process (kexp.recording.process_log)
 
 
 @dataclass

@@ -18,7 +18,8 @@ which encodes and frames it while the loop runs on: the file is byte-identical t
 error on the thread is raised in the caller's thread by the next ``write``, flush or ``close``, unchanged.  The
 loop's direct cost then falls to ~7 µs per step, but the encoding still needs the GIL, which the loop waits for
 outside its compiled kernels: in every run so far its wall time was above the synchronous writer's (+8.2 % paired
-against +3.9 %), so ``kexp`` runs write synchronously; the option stays for machines where it pays, and the
+against +3.9 %), so ``kexp`` runs write synchronously or, with ``logging.writer=process``, in a child process
+(:mod:`kexp.recording.process_log`); the thread option stays for machines where it pays, and the
 benchmark keeps measuring it.
 """
 from __future__ import annotations
@@ -63,7 +64,50 @@ class _Steps:
                 out.append((ch_pred, self.p0 + j, ns, ns, prediction_message(recs[i], Z, model)))
 
 
-class RunLogger:
+class LogHelpers:
+    """The typed helpers of a run log, all through ``write(topic, t, payload)``; a context manager that closes it."""
+
+    def log_config(self, config: dict, config_hash: str) -> None:
+        self.write("/config", 0.0, {"config": config, "config_hash": config_hash})
+
+    def log_model(self, model) -> None:
+        r = model.report
+        self.write("/model", 0.0, {
+            "eigenvalues_re": model.eigenvalues.real, "eigenvalues_im": model.eigenvalues.imag,
+            "Lambda": model.Lambda, "B": model.B, "b": model.b, "C": model.C, "dt": model.dt, "k": model.k,
+            "m": model.m, "n": model.n, "state_names": list(model.state_names), "x_eq": model.x_eq,
+            "report": {key: r[key] for key in ("cond_phi_x", "prediction_error", "input_projection_residual",
+                                               "drift_at_equilibrium", "kept", "dropped", "warnings") if key in r}})
+
+    def log_clf(self, clf, boundary_r=None, boundary_r_hat=None) -> None:
+        self.write("/clf", 0.0, {"P": clf.P, "r": clf.r, "r_hat": clf.r_hat, "status": clf.status,
+                                 "certificate": clf.certificate.to_dict(),
+                                 "boundary_r": [] if boundary_r is None else boundary_r,
+                                 "boundary_r_hat": [] if boundary_r_hat is None else boundary_r_hat})
+
+    def log_open_loop(self, t: np.ndarray, x: np.ndarray) -> None:
+        for ti, xi in zip(t, x):
+            self.write("/open_loop", float(ti), {"t": float(ti), "x": xi})
+
+    def log_summary(self, t: float, status: str, message: str, metrics: dict, completed: bool,
+                    perturbation: dict | None = None) -> None:
+        """``perturbation``: the noise and plant mismatch as used ({"noise": …, "plant": …}; kexp.app.main)."""
+        payload = {"status": status, "message": message, "metrics": metrics, "completed": completed}
+        if perturbation is not None:
+            payload.update(perturbation)
+        self.write("/summary", t, payload)
+
+    def log_run_info(self, t: float, versions: dict, timing: dict, lock: dict | None = None) -> None:
+        self.write("/run_info", t, {"versions": versions, "timing": timing, "lock": lock})
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class RunLogger(LogHelpers):
     """Writes one run's MCAP log at ``path`` (parent folders created, an existing file replaced): every channel of
     :data:`~kexp.recording.schema.CHANNELS` registered with its JSON schema, messages time-stamped with simulation
     time, zstd chunks flushed every ``flush_every`` simulated seconds; ``/prediction`` every ``prediction_every``
@@ -107,13 +151,22 @@ class RunLogger:
         """Add one message (numpy values welcome: :func:`~kexp.recording.schema.encode` converts them)."""
         channel = self._ch[topic]          # an unknown topic raises KeyError here, in the caller's thread
         self._raise_thread_error()
+        # encoded now (the payload may change after this call), or by the writer thread
+        self._add(channel, topic, t, encode(payload) if self._queue is None else payload)
+
+    def write_encoded(self, topic: str, t: float, data: bytes) -> None:
+        """Add one message already encoded (``encode(payload)``: the log-writer process's messages)."""
+        channel = self._ch[topic]
+        self._raise_thread_error()
+        self._add(channel, topic, t, data)
+
+    def _add(self, channel: int, topic: str, t: float, data) -> None:
         if self._steps:                    # the steps logged before it go first
             self._seal_steps()
         seq = self._seq[topic]
         self._seq[topic] = seq + 1
         ns = _ns(t)
-        # encoded now (the payload may change after this call), or by the writer thread
-        self._pending.append((channel, seq, ns, ns, encode(payload) if self._queue is None else payload))
+        self._pending.append((channel, seq, ns, ns, data))
 
     def _seal_steps(self) -> None:
         """Close the segment of the steps logged since the last one, with its sequence numbers taken now."""
@@ -172,25 +225,6 @@ class RunLogger:
             error, self._error = self._error, None
             raise error
 
-    # -- typed helpers -----------------------------------------------------------------------------------------
-    def log_config(self, config: dict, config_hash: str) -> None:
-        self.write("/config", 0.0, {"config": config, "config_hash": config_hash})
-
-    def log_model(self, model) -> None:
-        r = model.report
-        self.write("/model", 0.0, {
-            "eigenvalues_re": model.eigenvalues.real, "eigenvalues_im": model.eigenvalues.imag,
-            "Lambda": model.Lambda, "B": model.B, "b": model.b, "C": model.C, "dt": model.dt, "k": model.k,
-            "m": model.m, "n": model.n, "state_names": list(model.state_names), "x_eq": model.x_eq,
-            "report": {key: r[key] for key in ("cond_phi_x", "prediction_error", "input_projection_residual",
-                                               "drift_at_equilibrium", "kept", "dropped", "warnings") if key in r}})
-
-    def log_clf(self, clf, boundary_r=None, boundary_r_hat=None) -> None:
-        self.write("/clf", 0.0, {"P": clf.P, "r": clf.r, "r_hat": clf.r_hat, "status": clf.status,
-                                 "certificate": clf.certificate.to_dict(),
-                                 "boundary_r": [] if boundary_r is None else boundary_r,
-                                 "boundary_r_hat": [] if boundary_r_hat is None else boundary_r_hat})
-
     def log_step(self, rec, control_step=None, model=None) -> None:
         """Log one control step (/step, /timing; /prediction every ``prediction_every`` steps).  The record is
         only kept now: its messages are encoded at the next flush, with the other steps' (``rec`` and the control
@@ -202,21 +236,6 @@ class RunLogger:
         if rec.t + 1e-12 >= self._next_flush:
             self._flush()
             self._next_flush += self.flush_every
-
-    def log_open_loop(self, t: np.ndarray, x: np.ndarray) -> None:
-        for ti, xi in zip(t, x):
-            self.write("/open_loop", float(ti), {"t": float(ti), "x": xi})
-
-    def log_summary(self, t: float, status: str, message: str, metrics: dict, completed: bool,
-                    perturbation: dict | None = None) -> None:
-        """``perturbation``: the noise and plant mismatch as used ({"noise": …, "plant": …}; kexp.app.main)."""
-        payload = {"status": status, "message": message, "metrics": metrics, "completed": completed}
-        if perturbation is not None:
-            payload.update(perturbation)
-        self.write("/summary", t, payload)
-
-    def log_run_info(self, t: float, versions: dict, timing: dict, lock: dict | None = None) -> None:
-        self.write("/run_info", t, {"versions": versions, "timing": timing, "lock": lock})
 
     def close(self) -> None:
         """Write what is queued, finish the file (summary and index) and close it; raises the writer thread's
@@ -254,13 +273,6 @@ class RunLogger:
         if self._queue is not None and self._thread.is_alive():
             self._queue.put(None)
             self._thread.join()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
 
 def copy_log(src: str | Path, dst: str | Path, edit=None) -> Path:
     """Rewrite the run log ``src`` to ``dst`` message by message (same channels, log times and order), letting

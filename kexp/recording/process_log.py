@@ -1,0 +1,290 @@
+"""ProcessRunLogger: a run log written by a separate process, so that the control loop only hands its numbers over.
+
+A writer thread cannot take the encoding off the loop: the encoding needs the GIL, and the loop then waits for it
+(README, "Logging overhead").  Here a child process (``python -m kexp.recording.process_log``, started with the
+logger; it imports numpy, orjson and zstandard, not scipy, ~0.2 s) runs a synchronous :class:`RunLogger` on the
+same calls: the loop keeps each step's record, and every ``hand_over_every`` (100) steps packs the records' fields
+with ``marshal`` (arrays stacked as bytes; ~2.4 µs per step, ~5 µs between control steps, whose code evicts the
+packing's from the caches) and writes them to the child's stdin; the child rebuilds the records, encodes, frames
+and compresses on the other core, flushing by simulated time as RunLogger does.  Other messages are encoded in
+the caller (so that their payloads may change afterwards) and sent as bytes; a plan's x̂ = C z + x_eq is computed
+in the caller too, as the synchronous logger would.  The file is byte-identical to :class:`RunLogger`'s (tests).
+
+The child reports at the end, on its stdout: ``close()`` raises its error, if any, in the caller (an error in the
+child stops its writing; it keeps reading so the loop is never blocked).  ``abandon()``, or the caller's process
+ending without ``close()`` (the child then reads end-of-file), writes what was sent and closes the file without
+its summary section, like a killed synchronous run's log.  POSIX pipes; the pipe is enlarged to 1 MiB where Linux
+allows, so that a hand-over never waits for the child (100 steps are ~30–50 kB).
+"""
+from __future__ import annotations
+
+import marshal
+import pickle
+import struct
+import subprocess
+import sys
+import threading
+from itertools import chain
+from operator import attrgetter
+from pathlib import Path
+
+import numpy as np
+
+from .schema import CHANNELS, encode
+from .writer import LogHelpers, RunLogger
+
+SCALARS = ("k", "t", "V", "Vdot", "active", "binds", "fallback", "iterations", "qp_iterations", "qp_status",
+           "reason", "region", "slack", "status", "solve_time")
+ARRAYS = ("u", "x", "z")
+OPTIONAL = ("x_meas", "w")      # read with getattr(rec, name, None), as steps.step_payload does
+FIELDS = SCALARS + ARRAYS + OPTIONAL
+_HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
+_PIPE_SIZE = 1 << 20
+HAND_OVER_EVERY = 100           # steps per hand-over (the child flushes by simulated time as RunLogger does)
+_F_SETPIPE_SZ = 1031            # Linux fcntl
+# what marshal keeps as it is (it writes any other object with a buffer, a numpy scalar say, as bytes)
+_PLAIN = frozenset({float, int, str, bool, type(None)})
+_scalars = attrgetter(*SCALARS)
+_dtype, _shape = attrgetter("dtype"), attrgetter("shape")
+
+
+def _column(values: list):
+    """A batch's arrays of one field as (dtype, shape, their bytes one after the other), or None where they are
+    not all numeric arrays of one dtype and shape (all None: ())."""
+    first = values[0]
+    if first is None:
+        return () if all(v is None for v in values) else None
+    if type(first) is not np.ndarray or first.dtype.hasobject or set(map(type, values)) != {np.ndarray}:
+        return None
+    if len(set(map(_dtype, values))) != 1 or len(set(map(_shape, values))) != 1:
+        return None
+    return first.dtype.str, first.shape, b"".join(map(np.ndarray.tobytes, values))
+
+
+def _rows(column, n: int) -> list:
+    if column == ():
+        return [None] * n
+    dtype, shape, data = column
+    return list(np.frombuffer(data, dtype=np.dtype(dtype)).reshape((n,) + tuple(shape)))
+
+
+def pack_steps(steps: list) -> tuple[bytes, bytes]:
+    """(frame kind, data) of a batch of (record, (dt, x̂) of its logged plan or None).  ``marshal`` (kind S) when
+    every scalar field is a Python float, int, str, bool or None and each array field holds arrays of one dtype
+    and shape (sent stacked, as bytes: ~1 µs per step); else ``pickle`` of the values as they are (kind s:
+    numpy scalars, lists and the like)."""
+    recs = [rec for rec, _ in steps]
+    scalars = list(map(_scalars, recs))
+    if set(map(type, chain.from_iterable(scalars))) <= _PLAIN:
+        columns = [_column([getattr(r, f) for r in recs]) for f in ARRAYS]
+        columns += [_column([getattr(r, f, None) for r in recs]) for f in OPTIONAL]
+        plans = [(i, plan[0], _column([plan[1]])) for i, (_, plan) in enumerate(steps) if plan is not None]
+        if (None not in columns and all(type(p[1]) is float and p[2] is not None for p in plans)):
+            return b"S", marshal.dumps((scalars, columns, plans))
+    rows = [(tuple([getattr(rec, f) for f in SCALARS + ARRAYS] + [getattr(rec, f, None) for f in OPTIONAL]), plan)
+            for rec, plan in steps]
+    return b"s", pickle.dumps(rows, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+class _Record:
+    """A step record rebuilt in the writer process: the fields :mod:`kexp.recording.steps` reads."""
+
+    __slots__ = FIELDS
+
+    def __init__(self, values):
+        for name, value in zip(FIELDS, values):
+            setattr(self, name, value)
+
+
+class _Plan:
+    """What RunLogger.log_step reads of a control step and a model for a logged plan: ``predicted`` (here x̂
+    itself) and a model whose ``to_state`` is the identity (x̂ was computed by the caller) and whose ``dt`` is the
+    caller's model's."""
+
+    __slots__ = ("predicted", "dt")
+
+    def __init__(self, dt, x_pred):
+        self.dt, self.predicted = dt, x_pred
+
+    @staticmethod
+    def to_state(Z):
+        return Z
+
+
+def unpack_steps(kind: bytes, data: bytes) -> list:
+    """The records (and plans) of :func:`pack_steps`'s data."""
+    if kind == b"s":
+        return [(_Record(values), None if plan is None else _Plan(*plan)) for values, plan in pickle.loads(data)]
+    scalars, columns, plans = marshal.loads(data)
+    n = len(scalars)
+    arrays = [_rows(c, n) for c in columns]
+    out = [(_Record(values + tuple(a[i] for a in arrays)), None) for i, values in enumerate(scalars)]
+    for i, dt, x_pred in plans:
+        out[i] = (out[i][0], _Plan(dt, _rows(x_pred, 1)[0]))
+    return out
+
+
+class ProcessRunLogger(LogHelpers):
+    """:class:`~kexp.recording.writer.RunLogger`'s interface and bytes, written by a child process (module
+    docstring).  The file is created at once (an unwritable path raises OSError here); an unknown topic raises
+    KeyError in the caller, as with RunLogger, and messages are encoded in the caller.  Steps are handed over
+    every ``hand_over_every`` steps (the child flushes by ``flush_every`` as RunLogger does: the same bytes)."""
+
+    def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
+                 compress_thread: bool = True, hand_over_every: int = HAND_OVER_EVERY):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        open(self.path, "wb").close()           # the caller learns now if the file cannot be written
+        self.flush_every = flush_every
+        self.prediction_every = prediction_every
+        self.hand_over_every = max(1, int(hand_over_every))
+        self._steps: list = []                  # (record, (Z, model) or None) since the last hand-over
+        self._closed = False
+        # its own session: a Ctrl-C at the terminal reaches the run, whose handler ends the log (abandon or close)
+        self._proc = subprocess.Popen([sys.executable, "-m", "kexp.recording.process_log"], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+        try:
+            import fcntl
+            fcntl.fcntl(self._proc.stdin.fileno(), _F_SETPIPE_SZ, _PIPE_SIZE)
+        except (ImportError, OSError):          # not Linux, or above the system's limit: the default pipe
+            pass
+        self._send(b"O", pickle.dumps((str(self.path), flush_every, prediction_every, compress_thread)))
+
+    # -- the loop's side ---------------------------------------------------------------------------------------
+    def log_step(self, rec, control_step=None, model=None) -> None:
+        """Keep one control step (as RunLogger.log_step; ``rec`` and the plan must not change until the next
+        hand-over, every ``hand_over_every`` steps)."""
+        plan = None
+        if (self.prediction_every and control_step is not None and control_step.predicted is not None
+                and model is not None and rec.k % self.prediction_every == 0):
+            plan = (control_step.predicted, model)
+        steps = self._steps
+        steps.append((rec, plan))
+        if len(steps) >= self.hand_over_every:
+            self._hand_over()
+
+    def write(self, topic: str, t: float, payload: dict) -> None:
+        """Add one message, encoded here (RunLogger.write's errors, in the caller)."""
+        if topic not in CHANNELS:
+            raise KeyError(topic)
+        data = encode(payload)
+        self._hand_over()
+        self._send(b"W", pickle.dumps((topic, float(t), data)))
+
+    def _hand_over(self) -> None:
+        if not self._steps:
+            return
+        steps, self._steps = self._steps, []
+        kind, data = pack_steps([(rec, None if plan is None else (plan[1].dt, plan[1].to_state(plan[0])))
+                                 for rec, plan in steps])
+        self._send(kind, data)
+
+    def _send(self, kind: bytes, data: bytes) -> None:
+        try:
+            self._proc.stdin.write(_HEAD.pack(kind, len(data)))
+            self._proc.stdin.write(data)
+            self._proc.stdin.flush()
+        except (BrokenPipeError, ValueError) as exc:    # the child is gone (ValueError: its pipe closed here)
+            self._closed = True
+            raise RuntimeError(f"the log writer process for {self.path} has ended: {self._ending()}") from exc
+
+    def _ending(self) -> str:
+        """What the child said on its way out (its exit code and stderr), after it has ended."""
+        try:
+            self._proc.stdin.close()
+        except (BrokenPipeError, OSError, ValueError):
+            pass
+        err = self._proc.stderr.read().decode(errors="replace").strip()
+        rc = self._proc.wait()
+        return f"exit code {rc}" + (f": {err.splitlines()[-1]}" if err else "")
+
+    def _finish(self, kind: bytes):
+        """Send the rest and the last word (close or abandon), wait for the child; its error, if any."""
+        self._hand_over()
+        self._send(kind, b"")
+        self._proc.stdin.close()
+        head = self._proc.stdout.read(4)      # the child has closed the file when it answers
+        if len(head) < 4:
+            raise RuntimeError(f"the log writer process for {self.path} gave no result: {self._ending()}")
+        result = pickle.loads(self._proc.stdout.read(struct.unpack("<I", head)[0]))
+        # its exit (~20–40 ms of interpreter shutdown) is waited for on a thread, not here
+        threading.Thread(target=_reap, args=(self._proc,), name="kexp-log-reaper", daemon=True).start()
+        return result
+
+    def close(self) -> None:
+        """Hand over what is kept, let the child finish the file (summary and index), wait for it; raises the
+        child's error, if any."""
+        if self._closed:
+            return
+        self._closed = True
+        error = self._finish(b"C")
+        if error is not None:
+            raise error
+
+    def abandon(self) -> None:
+        """For a run that stopped with an exception: the child writes what it was given and closes the file
+        without its summary section; never raises."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._finish(b"A")
+        except BaseException:  # noqa: BLE001 - the run's own exception is the one to report
+            self._proc.kill()
+            self._proc.wait()
+
+
+def _reap(proc: subprocess.Popen) -> None:
+    proc.wait()
+    proc.stdout.close()
+    proc.stderr.close()
+
+
+def main() -> int:
+    """The writer process: frames from stdin drive a synchronous RunLogger; the result (None or the error) is
+    pickled to stdout at the end.  End-of-file without a last word is an abandon (the caller died)."""
+    inp, out = sys.stdin.buffer, sys.stdout.buffer
+    logger, error, last = None, None, b"A"
+    while True:
+        head = inp.read(_HEAD.size)
+        if len(head) < _HEAD.size:
+            break
+        kind, size = _HEAD.unpack(head)
+        data = inp.read(size)
+        if kind in (b"C", b"A"):
+            last = kind
+            break
+        if error is not None:
+            continue                  # keep reading: the caller must never block on a full pipe
+        try:
+            if kind == b"O":
+                path, flush_every, prediction_every, compress_thread = pickle.loads(data)
+                logger = RunLogger(path, flush_every=flush_every, prediction_every=prediction_every,
+                                   compress_thread=compress_thread)
+            elif kind == b"W":
+                topic, t, encoded = pickle.loads(data)
+                logger.write_encoded(topic, t, encoded)
+            else:
+                for rec, plan in unpack_steps(kind, data):
+                    logger.log_step(rec, plan, plan)
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller at the end
+            error = exc
+    if logger is not None:
+        if last == b"C" and error is None:
+            try:
+                logger.close()
+            except BaseException as exc:  # noqa: BLE001
+                error = exc
+        else:
+            logger.abandon()
+    try:
+        result = pickle.dumps(error)
+    except Exception:  # noqa: BLE001 - an error that does not pickle: its type and text
+        result = pickle.dumps(RuntimeError(f"{type(error).__name__}: {error}"))
+    out.write(struct.pack("<I", len(result)) + result)
+    out.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

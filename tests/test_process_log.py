@@ -1,0 +1,146 @@
+"""ProcessRunLogger: the log written by a child process is byte-identical to RunLogger's; errors reach the caller
+(at once where RunLogger raises at once, at close for the child's own); an abandoned or orphaned log keeps every
+step handed over."""
+import pickle
+import struct
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from kexp.recording import read_log
+from kexp.recording.process_log import ProcessRunLogger, pack_steps, unpack_steps
+from kexp.recording.steps import step_messages
+from kexp.recording.writer import RunLogger
+
+
+@pytest.fixture(scope="module")
+def run(short_lmpc_run):
+    """A short LMPC closed loop on Van der Pol (conftest), for logging twice."""
+    return short_lmpc_run
+
+
+def _write(logger, run, steps=None):
+    model, clf, result, all_steps = run
+    with logger as lg:
+        lg.log_config({"a": 1, "nested": {"x": [1.0, 2.5]}}, "h")
+        lg.log_model(model)
+        lg.log_clf(clf)
+        for i, (rec, st) in enumerate(all_steps if steps is None else steps):
+            lg.log_step(rec, st, model)
+            if i == 37:     # a message among the steps
+                lg.write("/timing", rec.t, {"k": -1, "t": rec.t, "solve_time": np.float32(0.5)})
+        lg.log_open_loop(np.arange(3) * 0.01, np.ones((3, 2)))
+        lg.log_summary(float(result.t[-1]), result.status, "", {"cost": result.metrics.cost}, True)
+    return lg.path.read_bytes()
+
+
+def test_process_log_is_byte_identical(tmp_path, run):
+    kw = dict(prediction_every=10, flush_every=0.5)
+    sync = _write(RunLogger(tmp_path / "sync.mcap", **kw), run)
+    child = _write(ProcessRunLogger(tmp_path / "proc.mcap", **kw), run)
+    assert len(sync) > 10_000 and child == sync
+    log = read_log(tmp_path / "proc.mcap")
+    assert len(log.channels["/step"]) == len(run[3]) and len(log.channels["/prediction"]) > 0
+
+
+def test_odd_values_take_pickle_and_keep_their_bytes(tmp_path, run):
+    """numpy scalars that are not Python numbers (marshal refuses them), float32 vectors and a list z: the pickle
+    path, the same bytes."""
+    model, clf, result, steps = run
+    odd = [(replace(rec, V=np.float32(rec.V), binds=np.bool_(rec.binds), u=rec.u.astype(np.float32),
+                    z=list(rec.z)), st)
+           for rec, st in steps[:120]]
+    kind, data = pack_steps([(rec, None) for rec, _ in odd])
+    assert kind == b"s"
+    back = [rec for rec, _ in unpack_steps(kind, data)]
+    assert step_messages(back) == step_messages([rec for rec, _ in odd])
+    plain_kind, _ = pack_steps([(rec, None) for rec, _ in steps[:5]])
+    assert plain_kind == b"S"
+    kw = dict(prediction_every=10, flush_every=0.5)
+    sync = _write(RunLogger(tmp_path / "sync.mcap", **kw), run, odd)
+    child = _write(ProcessRunLogger(tmp_path / "proc.mcap", **kw), run, odd)
+    assert child == sync
+
+
+def test_errors_reach_the_caller(tmp_path):
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(OSError):                        # the file is created at once, in the caller
+        ProcessRunLogger(tmp_path / "a_file" / "x.mcap")
+    lg = ProcessRunLogger(tmp_path / "ok.mcap")
+    with pytest.raises(KeyError):                       # an unknown topic: at once
+        lg.write("/nope", 0.0, {})
+    payload = {"config": {"a": [1]}, "config_hash": "h"}
+    lg.write("/config", 0.0, payload)
+    payload["config"]["a"].append(2)                    # encoded at the call: a later change is not logged
+    lg.close()
+    assert [p["config"] for _, p in read_log(tmp_path / "ok.mcap").channels["/config"]] == [{"a": [1]}]
+    # an error in the child (a negative time stamp MCAP cannot store) is raised by close(), unchanged
+    bad = ProcessRunLogger(tmp_path / "bad.mcap")
+    bad.write("/timing", -1.0, {"k": 0, "t": -1.0, "solve_time": 0.0})
+    with pytest.raises(struct.error):
+        bad.close()
+    bad.close()                                          # closing again is a no-op
+
+
+def test_abandoned_and_orphaned_logs_keep_their_steps(tmp_path, run):
+    """abandon(): every step handed over is in the file (no summary section); the same when the caller's end of
+    the pipe closes without a last word (the caller died)."""
+    model, clf, result, steps = run
+    lg = ProcessRunLogger(tmp_path / "cut.mcap", flush_every=100.0)
+    for rec, st in steps[:150]:
+        lg.log_step(rec, st, model)
+    lg.abandon()
+    lg.abandon()
+    orphan = ProcessRunLogger(tmp_path / "orphan.mcap", flush_every=0.5)
+    for rec, st in steps[:150]:
+        orphan.log_step(rec, st, model)
+    orphan._hand_over()
+    orphan._proc.stdin.close()                           # as when the caller's process is killed
+    assert pickle.loads(orphan._proc.stdout.read()[4:]) is None and orphan._proc.wait() == 0
+    for name in ("cut.mcap", "orphan.mcap"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            log = read_log(tmp_path / name)
+        assert [p["k"] for _, p in log.channels["/step"]] == list(range(150))
+
+
+def test_a_run_with_the_writer_process_logs_what_a_synchronous_run_does(tmp_path):
+    """``logging.writer=process`` end to end: the same log as ``sync`` up to the wall clock (kexp-diff's default
+    policy), the same config hash (the writer is not part of the logged config)."""
+    from hydra import compose, initialize_config_dir
+
+    from kexp.app.main import CONF_DIR, run
+    from kexp.recording import diff_logs
+    small = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
+             "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11", "logging.rrd=false",
+             "logging.progress=false", f"cache.dir={tmp_path / 'cache'}"]
+    hashes = []
+    for writer in ("sync", "process"):
+        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+            cfg = compose(config_name="config", overrides=small + [f"logging.writer={writer}"])
+        hashes.append(run(cfg, tmp_path / writer, echo=lambda *_: None)["config_hash"])
+    assert hashes[0] == hashes[1]
+    res = diff_logs(tmp_path / "sync" / "run.mcap", tmp_path / "process" / "run.mcap")
+    assert res.equal, res.report()
+    assert len(read_log(tmp_path / "process" / "run.mcap").channels["/step"]) == 200
+
+
+def test_ctrl_c_is_the_runs_and_a_dead_child_is_reported(tmp_path, run):
+    """The child runs in its own session, so a Ctrl-C at the terminal (SIGINT to the foreground process group)
+    reaches only the run, whose handler ends the log.  A child that died is reported by the next hand-over or by
+    close(), as a RuntimeError naming the file, not as a hang."""
+    import os
+    model, clf, result, steps = run
+    lg = ProcessRunLogger(tmp_path / "int.mcap")
+    assert os.getsid(lg._proc.pid) == lg._proc.pid != os.getsid(0)
+    lg.close()
+    dead = ProcessRunLogger(tmp_path / "dead.mcap", hand_over_every=20)
+    dead._proc.kill()
+    dead._proc.wait()
+    with pytest.raises(RuntimeError, match="dead.mcap"):
+        for rec, st in steps:
+            dead.log_step(rec, st, model)
+        dead.close()
+    dead.abandon()                                       # after the error: a no-op, never raises
