@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .schema import CHANNELS, encode
-from .writer import LogHelpers, RunLogger
+from .writer import LogHelpers, RunLogger, logged_plan
 
 SCALARS = ("k", "t", "V", "Vdot", "active", "binds", "fallback", "iterations", "qp_iterations", "qp_status",
            "reason", "region", "slack", "status", "solve_time")
@@ -71,8 +71,8 @@ def _rows(column, n: int) -> list:
 def pack_steps(steps: list) -> tuple[bytes, bytes]:
     """(frame kind, data) of a batch of (record, (dt, x̂) of its logged plan or None).  ``marshal`` (kind S) when
     every scalar field is a Python float, int, str, bool or None and each array field holds arrays of one dtype
-    and shape (sent stacked, as bytes: ~1 µs per step); else ``pickle`` of the values as they are (kind s:
-    numpy scalars, lists and the like)."""
+    and shape (sent stacked, as bytes: ~2.4 µs per step repeated at once, ~5 µs in the loop); else ``pickle`` of
+    the values as they are (kind s: numpy scalars, lists and the like)."""
     recs = [rec for rec, _ in steps]
     scalars = list(map(_scalars, recs))
     if set(map(type, chain.from_iterable(scalars))) <= _PLAIN:
@@ -154,12 +154,9 @@ class ProcessRunLogger(LogHelpers):
     def log_step(self, rec, control_step=None, model=None) -> None:
         """Keep one control step (as RunLogger.log_step; ``rec`` and the plan must not change until the next
         hand-over, every ``hand_over_every`` steps)."""
-        plan = None
-        if (self.prediction_every and control_step is not None and control_step.predicted is not None
-                and model is not None and rec.k % self.prediction_every == 0):
-            plan = (control_step.predicted, model)
+        Z = logged_plan(self.prediction_every, rec, control_step, model)
         steps = self._steps
-        steps.append((rec, plan))
+        steps.append((rec, None if Z is None else (Z, model)))
         if len(steps) >= self.hand_over_every:
             self._hand_over()
 

@@ -42,6 +42,15 @@ def _ns(t: float) -> int:
     return int(round(float(t) * 1e9))
 
 
+def logged_plan(prediction_every: int, rec, control_step, model):
+    """The predicted z (Np+1, k) of a step whose plan is logged — every ``prediction_every`` steps (0: never),
+    when the controller made one and a model is given to map it to x — else None."""
+    if (prediction_every and control_step is not None and control_step.predicted is not None
+            and model is not None and rec.k % prediction_every == 0):
+        return control_step.predicted
+    return None
+
+
 class _Steps:
     """A segment of logged steps: the records, their plans and the first sequence number of each of their
     channels, taken when the segment was closed (so that the writer thread encodes them to the same bytes)."""
@@ -229,9 +238,9 @@ class RunLogger(LogHelpers):
         """Log one control step (/step, /timing; /prediction every ``prediction_every`` steps).  The record is
         only kept now: its messages are encoded at the next flush, with the other steps' (``rec`` and the control
         step's prediction must not change until then; ``closed_loop``'s do not)."""
-        if (self.prediction_every and control_step is not None and control_step.predicted is not None
-                and model is not None and rec.k % self.prediction_every == 0):
-            self._plans.append((len(self._steps), control_step.predicted, model))
+        Z = logged_plan(self.prediction_every, rec, control_step, model)
+        if Z is not None:
+            self._plans.append((len(self._steps), Z, model))
         self._steps.append(rec)
         if rec.t + 1e-12 >= self._next_flush:
             self._flush()
