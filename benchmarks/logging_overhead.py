@@ -74,29 +74,22 @@ def main():
     times = {mode: [] for mode in every}
     inside = {mode: [] for mode in times}     # seconds spent on logging inside the run
     spent = [0.0]
-    def timed(fn):
-        def wrapper(*a):
-            t = time.perf_counter()
-            out = fn(*a)
-            spent[0] += time.perf_counter() - t
-            return out
-        return wrapper
-
-    lmpc_module.rollout = timed(lmpc_module.rollout)
-    lmpc_module.rollout_poly = timed(lmpc_module.rollout_poly)
     kern = [0.0]        # seconds in the LMPC's compiled kernels (no logging in them: what logging does to them)
     cpu: dict = {mode: [] for mode in times}       # the loop thread's CPU time
 
-    def kernel(fn):
+    def timed(fn, acc):
+        """``fn``, its time added to acc[0]."""
         def wrapper(*a):
             t = time.perf_counter()
             out = fn(*a)
-            kern[0] += time.perf_counter() - t
+            acc[0] += time.perf_counter() - t
             return out
         return wrapper
 
-    lmpc_module.condense = kernel(lmpc_module.condense)
-    lmpc_module.block_maps_poly = kernel(lmpc_module.block_maps_poly)
+    lmpc_module.rollout = timed(lmpc_module.rollout, spent)
+    lmpc_module.rollout_poly = timed(lmpc_module.rollout_poly, spent)
+    lmpc_module.condense = timed(lmpc_module.condense, kern)
+    lmpc_module.block_maps_poly = timed(lmpc_module.block_maps_poly, kern)
     kernels: dict = {mode: [] for mode in times}
 
     def logged(logger):

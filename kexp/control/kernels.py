@@ -91,8 +91,14 @@ def _scaling(M):
         for j in range(n):
             row += abs(M[i, j])
         nrm = max(nrm, row)
+    return _halvings(nrm, 0.5)
+
+
+@njit(cache=True)
+def _halvings(nrm, theta):
+    """(s, nrm/2^s): the smallest s ≥ 0 with nrm/2^s ≤ theta."""
     s = 0
-    while nrm > 0.5:
+    while nrm > theta:
         nrm *= 0.5
         s += 1
     return s, nrm
@@ -297,10 +303,7 @@ def expm_frechet_pade(M, D, E, L):
         for r in range(n):
             col += abs(M[r, c])
         nrm = max(nrm, col)
-    s = 0
-    while nrm > THETA13:
-        nrm *= 0.5
-        s += 1
+    s = _halvings(nrm, THETA13)[0]
     sc = 0.5 ** s
     A = M * sc
     ident = np.eye(n)
