@@ -42,6 +42,7 @@ _HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
 _PIPE_SIZE = 1 << 20
 HAND_OVER_EVERY = 100           # steps per hand-over (the child flushes by simulated time as RunLogger does)
 _F_SETPIPE_SZ = 1031            # Linux fcntl
+_FIX = "; rerun, or write the log in the run's process: logging.writer=sync"
 # what marshal keeps as it is (it writes any other object with a buffer, a numpy scalar say, as bytes)
 _PLAIN = frozenset({float, int, str, bool, type(None)})
 _scalars = attrgetter(*SCALARS)
@@ -183,7 +184,7 @@ class ProcessRunLogger(LogHelpers):
             self._proc.stdin.flush()
         except (BrokenPipeError, ValueError) as exc:    # the child is gone (ValueError: its pipe closed here)
             self._closed = True
-            raise RuntimeError(f"the log writer process for {self.path} has ended: {self._ending()}") from exc
+            raise RuntimeError(f"the log writer process for {self.path} has ended: {self._ending()}{_FIX}") from exc
 
     def _ending(self) -> str:
         """What the child said on its way out (its exit code and stderr), after it has ended."""
@@ -202,7 +203,7 @@ class ProcessRunLogger(LogHelpers):
         self._proc.stdin.close()
         head = self._proc.stdout.read(4)      # the child has closed the file when it answers
         if len(head) < 4:
-            raise RuntimeError(f"the log writer process for {self.path} gave no result: {self._ending()}")
+            raise RuntimeError(f"the log writer process for {self.path} gave no result: {self._ending()}{_FIX}")
         result = pickle.loads(self._proc.stdout.read(struct.unpack("<I", head)[0]))
         # its exit (~20–40 ms of interpreter shutdown) is waited for on a thread, not here
         threading.Thread(target=_reap, args=(self._proc,), name="kexp-log-reaper", daemon=True).start()
