@@ -5,8 +5,8 @@ the LMPC's predicted horizon logged every 20 steps (the default) or 10 steps too
 time), with the chunks compressed in the loop's thread instead of McapFile's compression thread
 (``RunLogger(compress_thread=False)``), with the writer thread (``RunLogger(background=True)``: each flush hands
 the loop's records to the thread, which encodes and writes them while the loop runs on, holding the GIL but for
-the loop's compiled kernels), and with the writer process (``ProcessRunLogger``, ``logging.writer=process``: every
-100 steps the records are packed and handed to a child process that encodes, frames and compresses them),
+the loop's compiled kernels), and with the writer process (``ProcessRunLogger``, ``logging.writer=process``: at each
+flush time the records are packed and handed to a child process that encodes, frames and compresses them),
 interleaved, and prints the median wall times and their ratio, and the median over the repeats of each run's
 ratio to the no-log run of the same repeat (paired: the machine's slow drifts cancel).  Wall-time ratios between
 runs carry the machine's noise (a few % on a shared 2-core VM, at times more than the logging), so the cost of
@@ -18,7 +18,8 @@ file), plus the exact rollouts the LMPC makes only to log its prediction (kexp.c
 rollout_poly, wrapped here; in RTI mode nothing else calls them), as a share of the no-log run time.  The direct
 measure of the thread modes does not see the threads' competition for the GIL and the cores; the wall-time
 columns do.  One BLAS thread.  ``--breakdown N``: then N runs at the defaults with the logging's pieces timed one
-by one (encoding, framing, chunk hand-over, close, rollouts).
+by one (encoding, framing, chunk hand-over, close, rollouts), and N with the writer process (start, packing, the
+pipe, close).
 Logging also costs the loop indirectly: its encoding evicts the loop's data from the caches, and a writer thread
 holds the GIL when the loop's kernels return.  So the time in the LMPC's compiled kernels (condense and the block
 maps, which log nothing) is timed too, with the loop thread's CPU time: their growth over the no-log run is that
@@ -190,6 +191,45 @@ def breakdown(s, model, clf, h, x0, sim, repeat):
     print("|---|---:|")
     for name in rows[0]:
         print(f"| {name} | {1e6 * np.median([r.get(name, 0.0) for r in rows]) / n:.2f} |")
+    process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc)
+
+
+def process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc):
+    """The same for the writer process (logging.writer=process): the parent's pieces, medians over ``repeat`` runs,
+    per run (its start and close are once per run; packing and the pipe also happen inside log_step and close)."""
+    from kexp.recording import process_log
+
+    pieces = [(process_log, "pack_steps", "packing the records (marshal, arrays as bytes)"),
+              (ProcessRunLogger, "_push", "writing to the pipe"),
+              (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
+    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in pieces]
+    rows = []
+    try:
+        for owner, name, label in pieces:
+            setattr(owner, name, timed(label, getattr(owner, name)))
+        with tempfile.TemporaryDirectory() as tmp:
+            for i in range(repeat):
+                ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
+                acc.clear()
+                t = time.perf_counter()
+                logger = ProcessRunLogger(Path(tmp) / f"p{i}.mcap", prediction_every=20)
+                acc["start (opening the file, starting the child)"] = time.perf_counter() - t
+                log_step = timed("log_step (all: keeping the record, and at each flush time the hand-over)",
+                                 logger.log_step)
+                closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
+                            on_step=lambda rec, st: log_step(rec, st, model))
+                timed("close (all: the last part-second handed over, the child's answer waited for)",
+                      logger.close)()
+                rows.append(dict(acc))
+                time.sleep(0.1)         # as between runs: the child of the last one has exited
+    finally:
+        for owner, name, fn in saved:
+            setattr(owner, name, fn)
+    print(f"\nthe writer process (logging.writer=process), {repeat} runs, medians per run [ms]\n")
+    print("| piece | per run [ms] |")
+    print("|---|---:|")
+    for name in rows[0]:
+        print(f"| {name} | {1e3 * np.median([r.get(name, 0.0) for r in rows]):.2f} |")
 
 
 if __name__ == "__main__":

@@ -106,6 +106,37 @@ def test_abandoned_and_orphaned_logs_keep_their_steps(tmp_path, run):
         assert [p["k"] for _, p in log.channels["/step"]] == list(range(150))
 
 
+def test_steps_are_handed_over_when_a_synchronous_log_flushes(tmp_path, run):
+    """A run killed mid-second leaves the child the steps a synchronous log had flushed by then (those up to the
+    last flush time, t = 1.0 s here: 101 steps), and the messages written before them; the child, once it has
+    answered, is reaped."""
+    from kexp.recording import process_log
+    model, clf, result, steps = run
+    ks = []
+    for name, cls in (("sync.mcap", RunLogger), ("orphan.mcap", ProcessRunLogger)):
+        kw = {"compress_thread": False} if cls is RunLogger else {}
+        lg = cls(tmp_path / name, flush_every=0.5, **kw)
+        lg.log_config({"a": 1}, "h")
+        for rec, st in steps[:150]:
+            lg.log_step(rec, st, model)
+        if cls is ProcessRunLogger:
+            lg._proc.stdin.close()                       # the caller's process is killed here
+            assert pickle.loads(lg._proc.stdout.read()[4:]) is None and lg._proc.wait() == 0
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            log = read_log(tmp_path / name)
+        ks.append([p["k"] for _, p in log.channels["/step"]])
+        assert len(log.channels["/config"]) == 1
+        if cls is RunLogger:
+            lg.abandon()
+    assert ks[0] == ks[1] == list(range(101))
+    lg = ProcessRunLogger(tmp_path / "reaped.mcap")
+    lg.close()
+    assert lg._proc in process_log._ENDED
+    process_log._reap(block=True)
+    assert lg._proc not in process_log._ENDED and lg._proc.returncode == 0
+
+
 def test_a_run_with_the_writer_process_logs_what_a_synchronous_run_does(tmp_path):
     """``logging.writer=process`` end to end: the same log as ``sync`` up to the wall clock (kexp-diff's default
     policy), the same config hash (the writer is not part of the logged config)."""

@@ -3,12 +3,14 @@
 A writer thread cannot take the encoding off the loop: the encoding needs the GIL, and the loop then waits for it
 (README, "Logging overhead").  Here a child process (``python -m kexp.recording.process_log``, started with the
 logger; it imports numpy, orjson and zstandard, not scipy, ~0.2 s) runs a synchronous :class:`RunLogger` on the
-same calls: the loop keeps each step's record, and every ``hand_over_every`` (100) steps packs the records' fields
-with ``marshal`` (arrays stacked as bytes; ~2.4 µs per step, ~5 µs between control steps, whose code evicts the
-packing's from the caches) and writes them to the child's stdin; the child rebuilds the records, encodes, frames
-and compresses on the other core, flushing by simulated time as RunLogger does.  Other messages are encoded in
-the caller (so that their payloads may change afterwards) and sent as bytes; a plan's x̂ = C z + x_eq is computed
-in the caller too, as the synchronous logger would.  The file is byte-identical to :class:`RunLogger`'s (tests).
+same calls: the loop keeps each step's record and, when RunLogger would flush (every ``flush_every`` simulated
+seconds), packs the records' fields with ``marshal`` (arrays stacked as bytes; ~2.4 µs per step, ~5 µs between
+control steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
+the child rebuilds the records and, since the hand-over is the flush, encodes, frames and compresses them on the
+other core at once (at ``close()`` only the last part-second is left to it).  Other messages are encoded in the
+caller (so that their payloads may change afterwards) and go with the next hand-over, as bytes; a plan's
+x̂ = C z + x_eq is computed in the caller too, as the synchronous logger would.  The file is byte-identical to
+:class:`RunLogger`'s (tests).  The child exits without the interpreter's shutdown, and is reaped later.
 
 The child reports at the end, on its stdout: ``close()`` raises its error, if any, in the caller (an error in the
 child stops its writing; it keeps reading so the loop is never blocked).  ``abandon()``, or the caller's process
@@ -18,12 +20,13 @@ allows, so that a hand-over never waits for the child (100 steps are ~30–50 kB
 """
 from __future__ import annotations
 
+import atexit
 import marshal
+import os
 import pickle
 import struct
 import subprocess
 import sys
-import threading
 from itertools import chain
 from operator import attrgetter
 from pathlib import Path
@@ -40,7 +43,6 @@ OPTIONAL = ("x_meas", "w")      # read with getattr(rec, name, None), as steps.s
 FIELDS = SCALARS + ARRAYS + OPTIONAL
 _HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
 _PIPE_SIZE = 1 << 20
-HAND_OVER_EVERY = 100           # steps per hand-over (the child flushes by simulated time as RunLogger does)
 _F_SETPIPE_SZ = 1031            # Linux fcntl
 _FIX = "; rerun, or write the log in the run's process: logging.writer=sync"
 # what marshal keeps as it is (it writes any other object with a buffer, a numpy scalar say, as bytes)
@@ -59,7 +61,11 @@ def _column(values: list):
         return None
     if len(set(map(_dtype, values))) != 1 or len(set(map(_shape, values))) != 1:
         return None
-    return first.dtype.str, first.shape, b"".join(map(np.ndarray.tobytes, values))
+    try:
+        data = b"".join(values)     # their buffers, C-contiguous ones only (TypeError otherwise)
+    except TypeError:
+        data = b"".join(map(np.ndarray.tobytes, values))
+    return first.dtype.str, first.shape, data
 
 
 def _rows(column, n: int) -> list:
@@ -128,18 +134,24 @@ def unpack_steps(kind: bytes, data: bytes) -> list:
 class ProcessRunLogger(LogHelpers):
     """:class:`~kexp.recording.writer.RunLogger`'s interface and bytes, written by a child process (module
     docstring).  The file is created at once (an unwritable path raises OSError here); an unknown topic raises
-    KeyError in the caller, as with RunLogger, and messages are encoded in the caller.  Steps are handed over
-    every ``hand_over_every`` steps (the child flushes by ``flush_every`` as RunLogger does: the same bytes)."""
+    KeyError in the caller, as with RunLogger, and messages are encoded in the caller.  What the run logs is
+    handed over when RunLogger would flush it (a step reaching the next multiple of ``flush_every`` simulated
+    seconds), so the child flushes as soon as it has it, and a killed run loses what a synchronous one would;
+    ``hand_over_every``: at most that many steps per hand-over besides (None: no limit)."""
 
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
-                 compress_thread: bool = True, hand_over_every: int = HAND_OVER_EVERY):
+                 hand_over_every: int | None = None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         open(self.path, "wb").close()           # the caller learns now if the file cannot be written
         self.flush_every = flush_every
         self.prediction_every = prediction_every
-        self.hand_over_every = max(1, int(hand_over_every))
+        self.hand_over_every = None if hand_over_every is None else max(1, int(hand_over_every))
+        _reap()
+        self._next_flush = flush_every          # RunLogger's flush times, which the child keeps itself
         self._steps: list = []                  # (record, (Z, model) or None) since the last hand-over
+        self._messages: list = []               # (topic, t, encoded) written since the steps packed last
+        self._frames: list = []                 # frames packed, in file order, for the next hand-over
         self._closed = False
         # its own session: a Ctrl-C at the terminal reaches the run, whose handler ends the log (abandon or close)
         self._proc = subprocess.Popen([sys.executable, "-m", "kexp.recording.process_log"], stdin=subprocess.PIPE,
@@ -149,38 +161,61 @@ class ProcessRunLogger(LogHelpers):
             fcntl.fcntl(self._proc.stdin.fileno(), _F_SETPIPE_SZ, _PIPE_SIZE)
         except (ImportError, OSError):          # not Linux, or above the system's limit: the default pipe
             pass
-        self._send(b"O", pickle.dumps((str(self.path), flush_every, prediction_every, compress_thread)))
+        self._frame(b"O", pickle.dumps((str(self.path), flush_every, prediction_every)))
+        self._push()
 
     # -- the loop's side ---------------------------------------------------------------------------------------
     def log_step(self, rec, control_step=None, model=None) -> None:
-        """Keep one control step (as RunLogger.log_step; ``rec`` and the plan must not change until the next
-        hand-over, every ``hand_over_every`` steps)."""
+        """Keep one control step (as RunLogger.log_step; ``rec`` and the plan must not change until it is handed
+        over, at the next flush time)."""
         Z = logged_plan(self.prediction_every, rec, control_step, model)
+        if self._messages:
+            self._pack_messages()
         steps = self._steps
         steps.append((rec, None if Z is None else (Z, model)))
-        if len(steps) >= self.hand_over_every:
+        if rec.t + 1e-12 >= self._next_flush:
+            self._next_flush += self.flush_every
+            self._hand_over()
+        elif self.hand_over_every is not None and len(steps) >= self.hand_over_every:
             self._hand_over()
 
     def write(self, topic: str, t: float, payload: dict) -> None:
-        """Add one message, encoded here (RunLogger.write's errors, in the caller)."""
+        """Add one message, encoded here (RunLogger.write's errors, in the caller); handed over with the next
+        steps, or at the end."""
         if topic not in CHANNELS:
             raise KeyError(topic)
         data = encode(payload)
-        self._hand_over()
-        self._send(b"W", pickle.dumps((topic, float(t), data)))
+        if self._steps:                         # the steps logged before it go first
+            self._pack_steps()
+        self._messages.append((topic, float(t), data))
+
+    def _pack_steps(self) -> None:
+        steps, self._steps = self._steps, []
+        self._frame(*pack_steps([(rec, None if plan is None else (plan[1].dt, plan[1].to_state(plan[0])))
+                                 for rec, plan in steps]))
+
+    def _pack_messages(self) -> None:
+        messages, self._messages = self._messages, []
+        self._frame(b"W", pickle.dumps(messages, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def _frame(self, kind: bytes, data: bytes) -> None:
+        self._frames += (_HEAD.pack(kind, len(data)), data)
+
+    def _pack(self) -> None:
+        if self._steps:
+            self._pack_steps()
+        if self._messages:
+            self._pack_messages()
 
     def _hand_over(self) -> None:
-        if not self._steps:
-            return
-        steps, self._steps = self._steps, []
-        kind, data = pack_steps([(rec, None if plan is None else (plan[1].dt, plan[1].to_state(plan[0])))
-                                 for rec, plan in steps])
-        self._send(kind, data)
+        """Pack what is kept and send every packed frame to the child, in one write."""
+        self._pack()
+        self._push()
 
-    def _send(self, kind: bytes, data: bytes) -> None:
+    def _push(self) -> None:
+        frames, self._frames = self._frames, []
         try:
-            self._proc.stdin.write(_HEAD.pack(kind, len(data)))
-            self._proc.stdin.write(data)
+            self._proc.stdin.write(b"".join(frames))
             self._proc.stdin.flush()
         except (BrokenPipeError, ValueError) as exc:    # the child is gone (ValueError: its pipe closed here)
             self._closed = True
@@ -198,15 +233,15 @@ class ProcessRunLogger(LogHelpers):
 
     def _finish(self, kind: bytes):
         """Send the rest and the last word (close or abandon), wait for the child; its error, if any."""
-        self._hand_over()
-        self._send(kind, b"")
+        self._pack()
+        self._frame(kind, b"")
+        self._push()
         self._proc.stdin.close()
         head = self._proc.stdout.read(4)      # the child has closed the file when it answers
         if len(head) < 4:
             raise RuntimeError(f"the log writer process for {self.path} gave no result: {self._ending()}{_FIX}")
         result = pickle.loads(self._proc.stdout.read(struct.unpack("<I", head)[0]))
-        # its exit (~20–40 ms of interpreter shutdown) is waited for on a thread, not here
-        threading.Thread(target=_reap, args=(self._proc,), name="kexp-log-reaper", daemon=True).start()
+        _ENDED.append(self._proc)     # reaped later (a thread for it took 2–3 ms to start, measured)
         return result
 
     def close(self) -> None:
@@ -232,10 +267,19 @@ class ProcessRunLogger(LogHelpers):
             self._proc.wait()
 
 
-def _reap(proc: subprocess.Popen) -> None:
-    proc.wait()
-    proc.stdout.close()
-    proc.stderr.close()
+def _reap(block: bool = False) -> None:
+    """Collect the writer processes that have answered (they exit at once; ``block``: wait for them)."""
+    for proc in list(_ENDED):
+        if block:
+            proc.wait()
+        if proc.poll() is not None:
+            proc.stdout.close()
+            proc.stderr.close()
+            _ENDED.remove(proc)
+
+
+_ENDED: list = []       # writer processes that have sent their result, not yet reaped
+atexit.register(_reap, True)
 
 
 def main() -> int:
@@ -256,12 +300,13 @@ def main() -> int:
             continue                  # keep reading: the caller must never block on a full pipe
         try:
             if kind == b"O":
-                path, flush_every, prediction_every, compress_thread = pickle.loads(data)
+                path, flush_every, prediction_every = pickle.loads(data)
+                # chunks compressed here, at once: a compression thread would only add its hand-over to close()
                 logger = RunLogger(path, flush_every=flush_every, prediction_every=prediction_every,
-                                   compress_thread=compress_thread)
+                                   compress_thread=False)
             elif kind == b"W":
-                topic, t, encoded = pickle.loads(data)
-                logger.write_encoded(topic, t, encoded)
+                for topic, t, encoded in pickle.loads(data):
+                    logger.write_encoded(topic, t, encoded)
             else:
                 for rec, plan in unpack_steps(kind, data):
                     logger.log_step(rec, plan, plan)
@@ -285,4 +330,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    code = main()
+    sys.stderr.flush()
+    os._exit(code)      # the file is closed and the result sent: no interpreter shutdown (20–40 ms of CPU)
