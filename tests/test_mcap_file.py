@@ -228,6 +228,10 @@ def _reference_logger(path, monkeypatch, **kw):
     from kexp.recording import writer
 
     class Reference(writer.RunLogger):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            self._next_flush = self.flush_every      # the earlier flush rule's own state (not FlushClock's)
+
         def log_step(self, rec, control_step=None, model=None) -> None:
             t = float(rec.t)
             self.write("/step", t, {

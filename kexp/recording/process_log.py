@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .schema import CHANNELS, encode
-from .writer import LogHelpers, RunLogger, logged_plan
+from .writer import FlushClock, LogHelpers, RunLogger, logged_plan
 
 SCALARS = ("k", "t", "V", "Vdot", "active", "binds", "fallback", "iterations", "qp_iterations", "qp_status",
            "reason", "region", "slack", "status", "solve_time")
@@ -135,9 +135,9 @@ class ProcessRunLogger(LogHelpers):
     """:class:`~kexp.recording.writer.RunLogger`'s interface and bytes, written by a child process (module
     docstring).  The file is created at once (an unwritable path raises OSError here); an unknown topic raises
     KeyError in the caller, as with RunLogger, and messages are encoded in the caller.  What the run logs is
-    handed over when RunLogger would flush it (a step reaching the next multiple of ``flush_every`` simulated
-    seconds), so the child flushes as soon as it has it, and a killed run loses what a synchronous one would;
-    ``hand_over_every``: at most that many steps per hand-over besides (None: no limit)."""
+    handed over when RunLogger would flush it (its :class:`~kexp.recording.writer.FlushClock`, every
+    ``flush_every`` simulated seconds), so the child flushes as soon as it has it, and a killed run loses what a
+    synchronous one would; ``hand_over_every``: at most that many steps per hand-over besides (None: no limit)."""
 
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
                  hand_over_every: int | None = None):
@@ -148,7 +148,7 @@ class ProcessRunLogger(LogHelpers):
         self.prediction_every = prediction_every
         self.hand_over_every = None if hand_over_every is None else max(1, int(hand_over_every))
         _reap()
-        self._next_flush = flush_every          # RunLogger's flush times, which the child keeps itself
+        self._clock = FlushClock(flush_every)   # RunLogger's flush times, which the child keeps itself
         self._steps: list = []                  # (record, (Z, model) or None) since the last hand-over
         self._messages: list = []               # (topic, t, encoded) written since the steps packed last
         self._frames: list = []                 # frames packed, in file order, for the next hand-over
@@ -173,9 +173,9 @@ class ProcessRunLogger(LogHelpers):
             self._pack_messages()
         steps = self._steps
         steps.append((rec, None if Z is None else (Z, model)))
-        if rec.t + 1e-12 >= self._next_flush:
-            self._next_flush += self.flush_every
+        if self._clock.due(rec.t):
             self._hand_over()
+            self._clock.advance()
         elif self.hand_over_every is not None and len(steps) >= self.hand_over_every:
             self._hand_over()
 

@@ -51,6 +51,26 @@ def logged_plan(prediction_every: int, rec, control_step, model):
     return None
 
 
+class FlushClock:
+    """When a log flushes: at each step whose time reaches the next flush time (1e-12 s early, against rounding),
+    the step included; then the flush time moves on by ``every`` simulated seconds.  RunLogger's rule, which the
+    log-writer process's hand-overs follow too."""
+
+    __slots__ = ("every", "next")
+
+    def __init__(self, every: float):
+        self.every = every
+        self.next = every
+
+    def due(self, t: float) -> bool:
+        """Whether a step at time ``t`` flushes."""
+        return t + 1e-12 >= self.next
+
+    def advance(self) -> None:
+        """After a flush: the next flush time."""
+        self.next += self.every
+
+
 class _Steps:
     """A segment of logged steps: the records, their plans and the first sequence number of each of their
     channels, taken when the segment was closed (so that the writer thread encodes them to the same bytes)."""
@@ -142,7 +162,7 @@ class RunLogger(LogHelpers):
         self._seq = {t: 0 for t in CHANNELS}
         self.flush_every = flush_every
         self.prediction_every = prediction_every
-        self._next_flush = flush_every
+        self._clock = FlushClock(flush_every)
         self._closed = False
         # what waits for the next flush, in file order: messages as McapFile.add_messages takes them (their data
         # a payload still to encode with background=True) and _Steps segments; the steps since the last segment
@@ -242,9 +262,9 @@ class RunLogger(LogHelpers):
         if Z is not None:
             self._plans.append((len(self._steps), Z, model))
         self._steps.append(rec)
-        if rec.t + 1e-12 >= self._next_flush:
+        if self._clock.due(rec.t):
             self._flush()
-            self._next_flush += self.flush_every
+            self._clock.advance()
 
     def close(self) -> None:
         """Write what is queued, finish the file (summary and index) and close it; raises the writer thread's
@@ -282,6 +302,7 @@ class RunLogger(LogHelpers):
         if self._queue is not None and self._thread.is_alive():
             self._queue.put(None)
             self._thread.join()
+
 
 def copy_log(src: str | Path, dst: str | Path, edit=None) -> Path:
     """Rewrite the run log ``src`` to ``dst`` message by message (same channels, log times and order), letting
