@@ -34,6 +34,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_v] = "1"
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -170,31 +171,42 @@ def breakdown(s, model, clf, h, x0, sim, repeat):
               (McapFile, "flush", "closing a chunk at a flush (hand-over to the compression thread)"),
               (McapFile, "wait", "close: waiting for the last chunk's compression (zstd level 3)"),
               (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
-    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in pieces]
     rows = []
+    with patched(pieces, timed), tempfile.TemporaryDirectory() as tmp:
+        for i in range(repeat):
+            ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
+            logger = RunLogger(Path(tmp) / f"b{i}.mcap", prediction_every=20)
+            acc.clear()
+            log_step = timed("log_step (all)", logger.log_step)
+            closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
+                        on_step=lambda rec, st: log_step(rec, st, model))
+            timed("close (all)", logger.close)()
+            rows.append(dict(acc))
+    print_pieces(f"where the logging's time goes at the defaults, {repeat} runs, medians per step [µs]",
+                 "per step [µs]", rows, 1e6 / sim.n_steps)
+    process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc)
+
+
+@contextlib.contextmanager
+def patched(pieces, timed):
+    """Each (owner, name, label) of ``pieces`` wrapped by ``timed(label, ·)`` inside the block, restored after."""
+    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in pieces]
     try:
         for owner, name, label in pieces:
             setattr(owner, name, timed(label, getattr(owner, name)))
-        with tempfile.TemporaryDirectory() as tmp:
-            for i in range(repeat):
-                ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
-                logger = RunLogger(Path(tmp) / f"b{i}.mcap", prediction_every=20)
-                acc.clear()
-                log_step = timed("log_step (all)", logger.log_step)
-                closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
-                            on_step=lambda rec, st: log_step(rec, st, model))
-                timed("close (all)", logger.close)()
-                rows.append(dict(acc))
+        yield
     finally:
         for owner, name, fn in saved:
             setattr(owner, name, fn)
-    n = sim.n_steps
-    print(f"\nwhere the logging's time goes at the defaults, {repeat} runs, medians per step [µs]\n")
-    print("| piece | per step [µs] |")
+
+
+def print_pieces(title, column, rows, scale):
+    """A markdown table of each piece's median over ``rows`` (dicts of seconds), times ``scale``."""
+    print(f"\n{title}\n")
+    print(f"| piece | {column} |")
     print("|---|---:|")
     for name in rows[0]:
-        print(f"| {name} | {1e6 * np.median([r.get(name, 0.0) for r in rows]) / n:.2f} |")
-    process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc)
+        print(f"| {name} | {scale * np.median([r.get(name, 0.0) for r in rows]):.2f} |")
 
 
 def process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc):
@@ -205,34 +217,23 @@ def process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc):
     pieces = [(process_log, "pack_steps", "packing the records (marshal, arrays as bytes)"),
               (ProcessRunLogger, "_push", "writing to the pipe"),
               (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
-    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in pieces]
     rows = []
-    try:
-        for owner, name, label in pieces:
-            setattr(owner, name, timed(label, getattr(owner, name)))
-        with tempfile.TemporaryDirectory() as tmp:
-            for i in range(repeat):
-                ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
-                acc.clear()
-                t = time.perf_counter()
-                logger = ProcessRunLogger(Path(tmp) / f"p{i}.mcap", prediction_every=20)
-                acc["start (opening the file, starting the child)"] = time.perf_counter() - t
-                log_step = timed("log_step (all: keeping the record, and at each flush time the hand-over)",
-                                 logger.log_step)
-                closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
-                            on_step=lambda rec, st: log_step(rec, st, model))
-                timed("close (all: the last part-second handed over, the child's answer waited for)",
-                      logger.close)()
-                rows.append(dict(acc))
-                time.sleep(0.1)         # as between runs: the child of the last one has exited
-    finally:
-        for owner, name, fn in saved:
-            setattr(owner, name, fn)
-    print(f"\nthe writer process (logging.writer=process), {repeat} runs, medians per run [ms]\n")
-    print("| piece | per run [ms] |")
-    print("|---|---:|")
-    for name in rows[0]:
-        print(f"| {name} | {1e3 * np.median([r.get(name, 0.0) for r in rows]):.2f} |")
+    with patched(pieces, timed), tempfile.TemporaryDirectory() as tmp:
+        for i in range(repeat):
+            ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
+            acc.clear()
+            t = time.perf_counter()
+            logger = ProcessRunLogger(Path(tmp) / f"p{i}.mcap", prediction_every=20)
+            acc["start (opening the file, starting the child)"] = time.perf_counter() - t
+            log_step = timed("log_step (all: keeping the record, and at each flush time the hand-over)",
+                             logger.log_step)
+            closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
+                        on_step=lambda rec, st: log_step(rec, st, model))
+            timed("close (all: the last part-second handed over, the child's answer waited for)", logger.close)()
+            rows.append(dict(acc))
+            time.sleep(0.1)         # as between runs: the child of the last one has exited
+    print_pieces(f"the writer process (logging.writer=process), {repeat} runs, medians per run [ms]",
+                 "per run [ms]", rows, 1e3)
 
 
 if __name__ == "__main__":
