@@ -82,16 +82,21 @@ def _taylor_degree(theta):
 
 
 @njit(cache=True)
+def _norm1(M):
+    """‖M‖₁, the largest column sum of |M| (each column summed top to bottom); ‖M‖∞ is ``_norm1(M.T)``."""
+    nrm = 0.0
+    for c in range(M.shape[1]):
+        col = 0.0
+        for r in range(M.shape[0]):
+            col += abs(M[r, c])
+        nrm = max(nrm, col)
+    return nrm
+
+
+@njit(cache=True)
 def _scaling(M):
     """(s, ‖M‖∞/2^s): the smallest s ≥ 0 with ‖M‖∞/2^s ≤ 0.5 (the scaling of scaling and squaring)."""
-    n = M.shape[0]
-    nrm = 0.0
-    for i in range(n):
-        row = 0.0
-        for j in range(n):
-            row += abs(M[i, j])
-        nrm = max(nrm, row)
-    return _halvings(nrm, 0.5)
+    return _halvings(_norm1(M.T), 0.5)
 
 
 @njit(cache=True)
@@ -297,13 +302,7 @@ def expm_frechet_pade(M, D, E, L):
     n = M.shape[0]
     m = D.shape[0]
     b = PADE13
-    nrm = 0.0
-    for c in range(n):
-        col = 0.0
-        for r in range(n):
-            col += abs(M[r, c])
-        nrm = max(nrm, col)
-    s = _halvings(nrm, THETA13)[0]
+    s = _halvings(_norm1(M), THETA13)[0]
     sc = 0.5 ** s
     A = M * sc
     ident = np.eye(n)
