@@ -20,7 +20,7 @@ per IC (IC1: rti, sqp, ipopt; IC2: ...) so machine noise hits all alike.  The st
 (wall clock of the whole ``step()`` call, inside the controller).  The first step of every run is left out of the
 percentiles and reported on its own (it holds one-time set-up: PIQP's setup on the first call, a cold warm start).
 
-The IPOPT baseline is ``kexp.control.oracle.IpoptLmpc``: the same NLP (variables, multiple shooting, cost, slack,
+The IPOPT baseline is ``kexp.control.bilinear_nlp.IpoptLmpc``: the same NLP (variables, multiple shooting, cost, slack,
 (21e)/(21f) switching, bounds, warm start, IPOPT options tol 1e-10, bound_relax_factor 0, exact Hessian, MUMPS,
 ``step()``, fallback).  Its step map is the exact zero-order hold of the bilinear model, written symbolically in one
 of two equal forms (``discretisation``): 'exact' inlines q = 3 substeps of a 13-term Taylor series with the
@@ -84,7 +84,7 @@ def polynomial_vs_oracle_step(model, n: int = 500) -> tuple[float, int, int]:
     """Max relative difference (‖·‖∞ / ‖exact‖∞) between IpoptLmpc's two symbolic forms of the exact step,
     'polynomial' and 'exact', on random z (standard normal, k) and u ∈ [−5, 5]; also the terms kept and the full
     degree of the polynomial."""
-    from kexp.control.oracle import _step_order, bilinear_step_function, polynomial_terms, step_polynomial
+    from kexp.control.bilinear_nlp import _step_order, bilinear_step_function, polynomial_terms, step_polynomial
 
     q, p, umax = _step_order(model, -5.0, 5.0, None)
     C = step_polynomial(model.Lambda, model.B, model.b, model.dt, q, p)
@@ -104,7 +104,7 @@ def polynomial_vs_oracle_step(model, n: int = 500) -> tuple[float, int, int]:
 def oracle_check(model, clf, law, ics):
     """IpoptLmpc with the polynomial form vs the exact (nested Taylor) form on a short horizon, cold start."""
     from kexp.control import LmpcConfig
-    from kexp.control.oracle import IpoptLmpc
+    from kexp.control.bilinear_nlp import IpoptLmpc
 
     cfg = LmpcConfig(horizon=10, free_moves=2, blocks=5)
     t0 = time.perf_counter()
@@ -377,7 +377,7 @@ def main(argv=None) -> int:
     from kexp.clf import ClfConfig, synthesize_clf
     from kexp.control import Lmpc, LmpcConfig, make_law
     from kexp.control.kernels import poly_degree
-    from kexp.control.oracle import IpoptLmpc
+    from kexp.control.bilinear_nlp import IpoptLmpc
     from kexp.data import Circle, DataConfig, collect
     from kexp.dictionary import Monomials
     from kexp.identify import identify
@@ -423,12 +423,12 @@ def main(argv=None) -> int:
 
     if args.ipopt == "poly":
         err, keep, deg = polynomial_vs_oracle_step(model)
-        pr(f"- IPOPT baseline: kexp.control.oracle.IpoptLmpc, discretisation='polynomial' (its step map as a "
+        pr(f"- IPOPT baseline: kexp.control.bilinear_nlp.IpoptLmpc, discretisation='polynomial' (its step map as a "
            f"polynomial in u, {keep} of {deg + 1} terms kept; max relative difference to the 'exact' form on 500 "
            f"random (z, u): {err:.1e}); tol 1e-10, bound_relax_factor 0, exact Hessian.  The 'exact' form needs "
            f"≈ 17 GB and ≈ 17 s/step at horizon 100 on this model (module docstring)")
     else:
-        pr("- IPOPT baseline: kexp.control.oracle.IpoptLmpc, discretisation='exact'")
+        pr("- IPOPT baseline: kexp.control.bilinear_nlp.IpoptLmpc, discretisation='exact'")
     pr("")
 
     if args.ipopt == "poly" and not args.skip_oracle_check:

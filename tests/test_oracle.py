@@ -13,11 +13,11 @@ pytest.importorskip("casadi")
 
 from kexp.clf import ClfConfig, synthesize_clf  # noqa: E402
 from kexp.control import LqrController, Lmpc, LmpcConfig, make_law  # noqa: E402
-from kexp.control import oracle  # noqa: E402
+from kexp.control import bilinear_nlp, oracle  # noqa: E402
+from kexp.control.bilinear_nlp import IpoptLmpc, lmpc_objective  # noqa: E402
 from kexp.control.blocking import block_of_step  # noqa: E402
 from kexp.control.kernels import rollout  # noqa: E402
-from kexp.control.oracle import (IpoptLmpc, NmpcOracle, lmpc_objective, register_symbolic,  # noqa: E402
-                                  symbolic_dynamics)
+from kexp.control.oracle import NmpcOracle, register_symbolic, symbolic_dynamics  # noqa: E402
 from kexp.data import Circle, DataConfig, collect  # noqa: E402
 from kexp.dictionary import Monomials  # noqa: E402
 from kexp.errors import ConfigError  # noqa: E402
@@ -67,7 +67,7 @@ def test_exact_discretisation_matches_kexp_rollout(vdp, discretisation):
     """Both exact forms (the Taylor series of the augmented exponential, and the same map regrouped as a polynomial
     in u, IpoptLmpc's default for one input) against kexp's numba rollout over 20 steps."""
     _, model, _, _ = vdp
-    step_fn = oracle.bilinear_step_function(model, -5.0, 5.0, discretisation)
+    step_fn = bilinear_nlp.bilinear_step_function(model, -5.0, 5.0, discretisation)
     rng = np.random.default_rng(0)
     bos = block_of_step(np.ones(20, dtype=int))
     worst = 0.0
@@ -87,9 +87,9 @@ def test_polynomial_form_is_the_exact_map_for_one_input():
     rng = np.random.default_rng(1)
     lam, B, b = -np.eye(3), rng.standard_normal((2, 3, 3)), rng.standard_normal((2, 3))
     with pytest.raises(ConfigError, match="polynomial step form is for one input; this model has m = 2"):
-        oracle.step_polynomial(lam, B, b, 0.01, 1, 13)
+        bilinear_nlp.step_polynomial(lam, B, b, 0.01, 1, 13)
     # one input: Σ_d u^d C_d [z; 1] equals the nested Taylor series at any u (here u = 3, q = 2 substeps)
-    C = oracle.step_polynomial(lam, B[:1], b[:1], 0.01, 2, 13)
+    C = bilinear_nlp.step_polynomial(lam, B[:1], b[:1], 0.01, 2, 13)
     A = np.zeros((4, 4))
     A[:3, :3], A[:3, 3] = (lam + 3.0 * B[0]) * 0.005, 3.0 * b[0] * 0.005
     T = sum(np.linalg.matrix_power(A, j) / math.factorial(j) for j in range(14))
