@@ -2,7 +2,7 @@
 """Per-step time of the working presets' LMPC (issue 13's budget: median RTI step ≤ 0.5 ms).
 
 For each preset (default: ``vanderpol`` and ``pendulum``, both a 20-step horizon with the terminal cost) the script
-composes the preset as ``kexp +experiment=<preset>`` would, runs it once through ``kexp.app.main.run`` to build
+composes the preset as ``kexp +experiment=<preset>`` would, runs it once through ``kexp.app.experiment.run`` to build
 the model, CLF and controller exactly as a run does (model cache in --cache), then runs the closed loop
 (``kexp.simulate.closed_loop``, the true system) from the first --ics initial conditions of
 ``default_rng(42).uniform(-1, 1, (2, 100)).T`` for --T seconds, --repeat times.  The step time is
@@ -37,10 +37,11 @@ def build(preset: str, cache: str):
     """(system, model, clf, controller) of the preset, built by a short kexp run."""
     from hydra import compose, initialize_config_dir
 
-    import kexp.app.main as app
+    import kexp.app.experiment as app
+    from kexp.app.conf import CONF_DIR
     overrides = [f"+experiment={preset}", "logging.rrd=false", "logging.progress=false", f"cache.dir={cache}",
                  "sim.T=0.1"]
-    with initialize_config_dir(config_dir=app.CONF_DIR, version_base="1.3"):
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
     got = {}
     real = app.build_controller

@@ -7,7 +7,8 @@ from hydra import compose, initialize_config_dir
 
 from kexp.analysis.figures import paper_figure, theorem1_figure
 from kexp.analysis.theorem1 import estimate_constants, measured_error
-from kexp.app.main import CONF_DIR, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import run
 from kexp.app.results import table
 
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",

@@ -8,7 +8,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from kexp.app.main import CONF_DIR, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import run
 from kexp.errors import ConfigError
 from kexp.identify import KoopmanBilinearModel
 
@@ -71,7 +72,7 @@ def test_a_users_preset_is_checked_against_the_schema_at_composition(tmp_path, p
     """A misspelled key or a wrong type in a preset file fails when Hydra composes it, with the full key named."""
     import shutil
     from hydra.errors import HydraException
-    from kexp.app.main import composition_error_line
+    from kexp.app.precheck import composition_error_line
     conf = tmp_path / "conf"
     shutil.copytree(CONF_DIR, conf)
     (conf / "experiment" / "mine.yaml").write_text("# @package _global_\n" + preset)
@@ -152,7 +153,7 @@ def test_tight_bound_presets_are_the_working_presets_with_the_bound(preset, base
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from kexp.app.main import CONF_DIR
+    from kexp.app.conf import CONF_DIR
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         tight = compose(config_name="config", overrides=[f"+experiment={preset}"])
         ref = compose(config_name="config", overrides=[f"+experiment={base}", f"controller.u_min={-bound}",

@@ -6,7 +6,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from kexp.app.cache import MODEL_GROUPS, clf_key, model_key
-from kexp.app.main import CONF_DIR, config_dict, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import config_dict, run
 from kexp.app.schema import KexpConfig
 from kexp.identify import FORMAT_VERSION
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from kexp.app.main import CONF_DIR, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import run
 
 pytest.importorskip("casadi")
 

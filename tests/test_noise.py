@@ -76,7 +76,8 @@ from pathlib import Path  # noqa: E402
 from hydra import compose, initialize_config_dir  # noqa: E402
 
 from kexp.app.cache import model_key  # noqa: E402
-from kexp.app.main import CONF_DIR, config_dict, run  # noqa: E402
+from kexp.app.conf import CONF_DIR  # noqa: E402
+from kexp.app.experiment import config_dict, run  # noqa: E402
 from kexp.data import IntegratorOptions, integrate  # noqa: E402
 from kexp.identify import FORMAT_VERSION, KoopmanBilinearModel  # noqa: E402
 from kexp.recording import diff_logs, read_log  # noqa: E402

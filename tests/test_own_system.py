@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from kexp.app.main import CONF_DIR, config_dict
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import config_dict
 from kexp.recording import read_log
 
 README = Path(__file__).resolve().parents[1] / "README.md"

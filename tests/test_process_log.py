@@ -142,7 +142,8 @@ def test_a_run_with_the_writer_process_logs_what_a_synchronous_run_does(tmp_path
     policy), the same config hash (the writer is not part of the logged config)."""
     from hydra import compose, initialize_config_dir
 
-    from kexp.app.main import CONF_DIR, run
+    from kexp.app.conf import CONF_DIR
+    from kexp.app.experiment import run
     from kexp.recording import diff_logs
     small = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
              "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11", "logging.rrd=false",

@@ -7,7 +7,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from kexp.app.lock import lock_info
-from kexp.app.main import CONF_DIR, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import run
 from kexp.recording import copy_log, read_log
 
 REPO = Path(__file__).resolve().parents[1]

@@ -7,7 +7,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from kexp.app import golden
-from kexp.app.main import CONF_DIR, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import run
 from kexp.recording import copy_log, diff_logs, read_log
 from kexp.recording.diff import main as diff_main
 from kexp.recording.schema import _DUMPS, encode, plain

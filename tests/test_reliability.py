@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from kexp.app.main import CONF_DIR, _precheck, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import run
+from kexp.app.precheck import precheck
 from kexp.errors import KexpError
 from kexp.recording import diff_logs, read_log
 
@@ -79,7 +81,7 @@ def test_bad_input_is_refused_early_with_one_line(override, fragment, tmp_path):
 ])
 def test_composition_errors_are_one_line_exit_2(argv, fragment, capsys):
     with pytest.raises(SystemExit) as ex:
-        _precheck(argv)
+        precheck(argv)
     assert ex.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("kexp: error: ") and fragment in err[0]

@@ -10,7 +10,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from rerun.chunk import RrdReader
 
-from kexp.app.main import CONF_DIR, run
+from kexp.app.conf import CONF_DIR
+from kexp.app.experiment import run
 from kexp.recording.reader import LogError, read_log
 from kexp.recording.render import RenderError, RenderWarning, main, render
 from kexp.recording.writer import RunLogger

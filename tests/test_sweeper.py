@@ -53,7 +53,7 @@ def _master(overrides):
     from hydra.core.utils import JobRuntime
     from hydra.types import RunMode
 
-    from kexp.app.main import CONF_DIR
+    from kexp.app.conf import CONF_DIR
     from kexp.app.sweeper import StructureCachingConfigLoader
     JobRuntime.instance().set("name", "kexp")
     loader = StructureCachingConfigLoader(config_search_path=create_config_search_path(CONF_DIR))

@@ -24,14 +24,14 @@ def compose(name: str):
     from hydra import compose as _compose
     from hydra import initialize_config_dir
 
-    from .main import CONF_DIR
+    from .conf import CONF_DIR
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         return _compose(config_name="config", overrides=GOLDEN[name] + COMMON)
 
 
 def record(name: str, out: Path) -> Path:
     """Run golden experiment ``name`` and copy its log to ``out`` (a .mcap path)."""
-    from .main import run
+    from .experiment import run
     with tempfile.TemporaryDirectory() as tmp:
         run(compose(name), tmp, echo=lambda *_: None)
         out.parent.mkdir(parents=True, exist_ok=True)

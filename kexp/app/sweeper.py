@@ -8,7 +8,7 @@ sweep spent 20–45 s composing before its first job started (``benchmarks/sweep
 Jobs whose overrides differ only in the values of dotted keys (``sim.x0=…``, ``controller.lmpc.horizon=…``) have
 the same defaults list, so composing one of them finds every error of the group choices, ``+``/``~`` overrides
 and config files; the values themselves were checked against the typed schema before Hydra started
-(``kexp.app.main._precheck_sweep``), and a value that is legal in type but not in range is reported by its own
+(``kexp.app.precheck._precheck_sweep``), and a value that is legal in type but not in range is reported by its own
 job.  :func:`install` makes the basic sweeper check one job per structure (:func:`representatives`); the ``kexp``
 command calls it before Hydra runs (Hydra accepts sweeper classes only from its ``hydra_plugins`` namespace, so
 kexp changes the one method instead of shipping a plugin package).  A sweep over 100 initial conditions then

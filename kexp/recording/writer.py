@@ -120,7 +120,7 @@ class LogHelpers:
 
     def log_summary(self, t: float, status: str, message: str, metrics: dict, completed: bool,
                     perturbation: dict | None = None) -> None:
-        """``perturbation``: the noise and plant mismatch as used ({"noise": …, "plant": …}; kexp.app.main)."""
+        """``perturbation``: the noise and plant mismatch as used ({"noise": …, "plant": …}; kexp.app.experiment)."""
         payload = {"status": status, "message": message, "metrics": metrics, "completed": completed}
         if perturbation is not None:
             payload.update(perturbation)

@@ -1,0 +1,278 @@
+"""Running one experiment: data → identification → CLF → controller → closed loop, logged and summarised
+(:func:`run`, which the ``kexp`` command (kexp.app.main) calls once per job), and the config as it is logged,
+hashed and keyed (:func:`config_dict`, :func:`config_hash`)."""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from ..clf.levelset import level_set_boundary
+from ..data import collect
+from ..data.noise import add_measurement_noise, data_rms
+from ..data.streaming import bounds as data_bounds
+from ..errors import ConfigError, KexpError
+from ..identify import identify
+from ..recording.schema import plain
+from ..recording.process_log import ProcessRunLogger
+from ..recording.writer import RunLogger
+from ..simulate import closed_loop
+from ..clf import load_clf, save_clf, synthesize_clf
+from ..identify import FORMAT_VERSION, KoopmanBilinearModel
+from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
+                    build_data_noise, build_data_smoothing, build_identification, build_logging, build_plant,
+                    build_sim, build_system,
+                    check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
+                    system_settings)
+from .cache import Cache, clf_key, model_key
+from .lock import installed_version, lock_info
+from .progress import Progress
+
+
+def _versions() -> dict:
+    """The versions of kexp and the packages its numbers depend on (None: not installed); looked up once per
+    process (kexp.app.lock.installed_version)."""
+    return {pkg: installed_version(pkg) for pkg in ("kexp", "numpy", "scipy", "cvxpy", "clarabel", "piqp", "mcap",
+                                             "rerun-sdk", "hydra-core", "numba")}
+
+
+def config_hash(cfg_dict: dict) -> str:
+    return hashlib.sha256(json.dumps(plain(cfg_dict), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _to_dict(cfg: Any) -> dict:
+    from omegaconf import DictConfig as _DC, OmegaConf
+    from omegaconf.errors import MissingMandatoryValue
+    if isinstance(cfg, _DC):
+        try:
+            return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+        except MissingMandatoryValue as exc:
+            key = getattr(exc, "full_key", None) or "a key"
+            raise ConfigError(f"{key} is missing (???): set it, e.g. {key}=<value>") from None
+    return dict(cfg)
+
+
+def config_dict(cfg: Any) -> dict:
+    """The composed config as plain data, as logged, hashed and keyed: without ``hydra``, without
+    ``logging.writer`` (how the log is written, not what: the bytes are the same either way, so a run's hash and
+    logged config do not depend on it), and with the system's params those that apply to ``system.name``
+    (:func:`~kexp.app.build.system_settings`)."""
+    out = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    if isinstance(out.get("logging"), dict):
+        out["logging"] = {k: v for k, v in out["logging"].items() if k != "writer"}
+    if "system" in out:
+        out["system"] = system_settings(out["system"])
+    return out
+
+
+def _perturbation(system, plant_params: dict, model, sim_cfg) -> dict:
+    """Noise and mismatch as used (summary.json, /summary): σ per state of the data noise and of the closed
+    loop's measurement noise (absolute), σ per input of the disturbance, the data RMS a relative σ refers to, and
+    the plant's parameters with those that differ from the nominal system."""
+    rms = model.report.get("data_rms")
+    if sim_cfg.noise.active and sim_cfg.noise.relative and rms is None:
+        raise ConfigError("sim.noise.relative=true: this model's report has no data RMS (a model file from before "
+                          "kexp recorded it); set sim.noise.relative=false with an absolute std, or re-identify "
+                          "with cache.enabled=false")
+    sim_std = sim_cfg.noise.sigma(system.n, rms) if sim_cfg.noise.active else np.zeros(system.n)
+    dist_std = sim_cfg.disturbance.sigma(system.m) if sim_cfg.disturbance.active else np.zeros(system.m)
+    return {"noise": {"data_rms": rms, "data_noise_std": model.report.get("data_noise_std"),
+                      "data_smoothing": model.report.get("data_smoothing", "none"),
+                      "sim_noise_std": sim_std.tolist(), "disturbance_std": dist_std.tolist()},
+            "plant": {"params": plant_params,
+                      "mismatch": {k: {"nominal": getattr(system, k), "plant": v} for k, v in plant_params.items()
+                                   if getattr(system, k) != v}}}
+
+
+def _perturbation_lines(p: dict) -> list[str]:
+    fmt = lambda v: "[" + ", ".join(f"{x:.4g}" for x in v) + "]"  # noqa: E731
+    out = []
+    if p["plant"]["mismatch"]:
+        out.append("plant mismatch: " + ", ".join(f"{k} = {d['plant']:g} (data: {d['nominal']:g})"
+                                                  for k, d in p["plant"]["mismatch"].items()))
+    if any(p["noise"]["sim_noise_std"]):
+        out.append(f"closed-loop measurement noise σ per state: {fmt(p['noise']['sim_noise_std'])}")
+    if any(p["noise"]["disturbance_std"]):
+        out.append(f"process disturbance on the input σ: {fmt(p['noise']['disturbance_std'])}")
+    return out
+
+
+def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool | None = None) -> dict:
+    """Run the experiment described by ``cfg`` (a mapping or DictConfig) and write its files into ``out_dir``:
+    data → identification → CLF → controller → closed loop on the true system from ``sim.x0``, logged to
+    ``run.mcap`` (and rendered to ``run.rrd``).  Returns the metrics, also written to ``summary.json``.
+    ``echo`` receives the printed lines; ``auto_progress`` is what ``logging.progress=auto`` means (None: a bar
+    when stderr is a terminal; a sweep job passes False, its bars would overwrite each other).  The log is written
+    in this process (``logging.writer=sync``; RunLogger's writer thread measured slower on this 2-core machine) or
+    by a child process (``process``: the same bytes, less of the run's time for runs of 10 s and more;
+    benchmarks/logging_overhead.py)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    cfg_dict = config_dict(cfg)
+    chash = config_hash(cfg_dict)
+    # every config section is validated before the long computations start
+    system = build_system(cfg_dict["system"])
+    sampler, data_cfg = build_data(cfg["data"])
+    ident_cfg = build_identification(cfg["identification"])
+    # recorded runs (data.source.kind=files) are read and checked now; their bounding box is the data region
+    file_data = read_data_files(system, data_cfg) if data_cfg.source.kind == "files" else None
+    clf_cfg = build_clf(cfg["clf"])
+    data_noise = build_data_noise(cfg["data"], system.n)
+    data_smooth = build_data_smoothing(cfg["data"])
+    sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt,
+                                       sampler if file_data is None else data_bounds(file_data))
+    plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
+    log_cfg = build_logging(cfg.get("logging") or {})
+    spec = build_controller_spec(cfg["controller"])
+    cache_cfg = dict(cfg.get("cache") or {})
+    cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))
+    k_max = dictionary_size(cfg["dictionary"], system.n)
+    if file_data is None:
+        check_data_budget(sampler, data_cfg, ident_cfg, k_max)
+    else:
+        check_file_data(file_data, ident_cfg, k_max)
+    check_memory_budget(spec, k_max, system.m)
+    summary_path = out_dir / "summary.json"
+    summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
+    # where the job's time goes (summary.json "timing", benchmarks/sweep.py): seconds per phase, in order
+    phases: dict[str, float] = {}
+    mark = [t0]
+
+    def phase(name: str) -> None:
+        now = time.perf_counter()
+        phases[name] = phases.get(name, 0.0) + now - mark[0]
+        mark[0] = now
+
+    phase("setup_s")
+
+    def identify_now():
+        dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
+        rms = data_rms(dataset, system.equilibrium)
+        dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium).with_smoothing(data_smooth)
+        model = identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
+        # kept with the cached model: a relative sim.noise is a fraction of these (clean data, about x_eq)
+        model.report["data_rms"] = rms.tolist()
+        model.report["data_noise_std"] = None if dataset.report.noise_std is None else list(
+            dataset.report.noise_std)
+        model.report["data_smoothing"] = dataset.report.smoothing
+        return model
+
+    # recorded data: the files' content (not only their path) determines the model
+    mkey = model_key(cfg_dict if file_data is None else {
+        **cfg_dict, "data": {**cfg_dict["data"], "files_digest": file_data.report.digest}}, FORMAT_VERSION)
+    model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
+                                KoopmanBilinearModel.load)
+    model_path = model.save(out_dir / "model.npz")
+    phase("model_s")
+    echo(model.summary())
+    rms = model.report.get("data_rms")
+    perturbation = _perturbation(system, plant_params, model, sim_cfg)
+    for line in _perturbation_lines(perturbation):
+        echo(line)
+    clf = cache.get_or_create(
+        f"clf-{clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max)}.npz",
+        lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
+                               law_params=spec.law_params),
+        save_clf, lambda p: load_clf(p, model, clf_cfg))
+    phase("clf_s")
+    # the true-model baselines (LQR, NMPC oracle) know the plant they control, mismatch included
+    controller = build_controller(spec, plant, model, clf,
+                                  prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0)
+    echo(clf.summary())
+    phase("controller_s")   # includes loading the compiled kernels (numba's cache) on a worker's first job
+    logger = None
+    if log_cfg["mcap"]:
+        writer = ProcessRunLogger if log_cfg["writer"] == "process" else RunLogger
+        logger = writer(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
+                        prediction_every=log_cfg["prediction_every"])
+        logger.log_config(cfg_dict, chash)
+        logger.log_model(model)
+        omega_r = level_set_boundary(model, clf.lyap, clf.r)
+        logger.log_clf(clf, omega_r, omega_r if clf.r_hat == clf.r else level_set_boundary(model, clf.lyap, clf.r_hat))
+    phase("log_setup_s")
+    log_seconds = [0.0]
+    bar = Progress(sim_cfg.n_steps, f"{system.name} closed loop",
+                   enabled=auto_progress if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
+
+    def on_step(rec, step):
+        if logger is not None:
+            start = time.perf_counter()
+            logger.log_step(rec, step, model)
+            log_seconds[0] += time.perf_counter() - start
+        bar.update()
+
+    try:
+        with threadpool_limits(limits=1):  # BLAS threads on tiny products cost 10-100× (design §2.11)
+            result = closed_loop(plant, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
+                                 on_step=on_step, noise_scale=rms)
+    except BaseException:
+        if logger is not None:
+            logger.abandon()   # the steps so far stay in run.mcap
+        raise
+    finally:
+        bar.close()
+    phase("closed_loop_s")
+    control_s = float(sum(r.solve_time for r in result.records))
+    m = result.metrics
+    mdict = m.to_dict()
+    deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
+    timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
+    versions = _versions()
+    lock = lock_info().to_dict()
+    files = {"model": model_path.name}
+    if logger is not None:
+        if result.open_loop is not None:
+            logger.log_open_loop(np.arange(len(result.open_loop)) * sim_cfg.dt, result.open_loop)
+        t_end = float(result.t[-1])
+        logger.log_summary(t_end, result.status, result.message, deterministic, completed=True,
+                           perturbation=perturbation)
+        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock)
+        logger.close()
+        files["mcap"] = logger.path.name
+        if log_cfg["rrd"]:
+            from ..recording.render import render
+            try:
+                files["rrd"] = render(logger.path, out_dir / "run.rrd").name
+            except KexpError as exc:  # the run and its log are complete; say why there is no recording
+                echo(f"warning: no run.rrd: {exc} (render later with `kexp-render {logger.path}`)")
+    metrics = {
+        "status": result.status,
+        "completed": True,
+        "message": result.message,
+        "config_hash": chash,
+        "system": system.name,
+        "controller": getattr(controller, "name", type(controller).__name__),
+        "x0": x0.tolist(),
+        "metrics": mdict,
+        "model": {"k": model.k, "inputs": model.report.get("inputs", "projection"),
+                  "cond_phi_x": model.report["cond_phi_x"],
+                  "prediction_error": model.report["prediction_error"],
+                  "input_projection_residual": model.report["input_projection_residual"],
+                  "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
+        "noise": perturbation["noise"],
+        "plant": perturbation["plant"],
+        "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
+        "versions": versions,
+        "lock": lock,
+        "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
+        "files": files,
+    }
+    phase("finish_s")   # the log's last messages, the Rerun recording, the summary
+    phases["closed_loop"] = {"control_s": control_s, "integrate_s": result.integrate_s,
+                             "logging_s": log_seconds[0]}
+    metrics["timing"] = phases
+    metrics["wall_time_s"] = mark[0] - t0   # the phases' sum: the run up to its summary
+    summary_path.write_text(json.dumps(plain(metrics), indent=2))
+    echo(f"result: {'SUCCESS' if m.success else 'FAILED'} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
+         f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "
+         f"fallbacks {m.fallbacks}")
+    echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "
+         f"max {m.solve_time_max * 1e3:.2f} ms")
+    echo(f"files: {out_dir.resolve()} ({', '.join(files.values())})")
+    return metrics

@@ -1,0 +1,137 @@
+"""The ``kexp`` command's checks before Hydra runs: a config that does not compose, a swept value that does not fit
+the schema or a config file that is not YAML is one line on stderr and exit code 2 (Hydra itself prints several
+lines, or a traceback, and exits 1)."""
+from __future__ import annotations
+
+import sys
+
+from .conf import CONF_DIR
+from .schema import register as _register_schema
+
+
+def composition_error_line(exc: BaseException) -> str:
+    """One line for a config that does not compose: the key, the value and what went wrong, e.g.
+    "controller.lmpc.horizon: Value 'abc' of type 'str' could not be converted to Integer (override
+    controller.lmpc.horizon=abc)"."""
+    cause, seen = exc, set()
+    while cause is not None and not getattr(cause, "full_key", None) and id(cause) not in seen:
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    full_key = getattr(cause, "full_key", None)
+    if cause is not None and full_key:
+        import dataclasses
+        detail = str(cause).splitlines()[0].strip()
+        first = str(exc).splitlines()[0].strip()
+        schema = getattr(cause, "object_type", None)
+        if "not in" in detail and dataclasses.is_dataclass(schema):  # a misspelled key: list the valid ones
+            detail += f"; valid keys: {sorted(f.name for f in dataclasses.fields(schema))}"
+        return f"{full_key}: {detail} ({first[0].lower() + first[1:]})"[:500]
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    msg = " ".join(line for line in lines if not line.startswith(("See https", "Set the environment")))
+    msg = msg.split(" Config search path:")[0]
+    return (msg[:400] + " …") if len(msg) > 400 else (msg or type(exc).__name__)
+
+
+def precheck(argv: list[str]) -> None:
+    """For a single run: compose the config first, so an unknown group option, preset or key, a value of the wrong
+    type (the schema, kexp/app/schema.py) or a bad override is one line and exit code 2 (Hydra itself prints
+    several lines and exits 1)."""
+    argv, config_dirs = _split_config_dirs(argv)
+    if config_dirs:
+        if any(a.startswith(("hydra.searchpath=", "+hydra.searchpath=")) for a in argv):
+            return  # both: leave it to Hydra
+        # --config-dir D: Hydra adds D to the search path (after kexp's conf/); the same for this check
+        argv = argv + [f"hydra.searchpath=[{','.join('file://' + d for d in config_dirs)}]"]
+    if any(a in ("-m", "--multirun") for a in argv):
+        return _precheck_sweep(argv)
+    if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
+        return
+    _compose_or_exit(argv, only_yaml=False)
+
+
+def _compose_or_exit(overrides: list[str], *, only_yaml: bool) -> None:
+    """Compose the config with ``overrides``; a preset or group file that is not YAML, and (unless ``only_yaml``)
+    any composition error, is one line on stderr and exit code 2.  With ``only_yaml`` other errors are left to
+    Hydra, which composes every job of a sweep and reports them itself."""
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+    from yaml import YAMLError
+    try:
+        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+            compose(config_name="config", overrides=overrides)
+    except YAMLError as exc:  # a preset or group file that is not YAML
+        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
+        sys.exit(2)
+    except (HydraException, OmegaConfBaseException, ValueError) as exc:
+        if only_yaml:
+            return
+        print(f"kexp: error: {composition_error_line(exc)}", file=sys.stderr)
+        sys.exit(2)
+    except Exception:  # noqa: BLE001 - only_yaml=False re-raises: a bug, not bad input
+        if not only_yaml:
+            raise
+
+
+def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(argv without ``--config-dir D`` / ``--config-dir=D`` / ``-cd D``, the absolute directories D)."""
+    import os
+    rest, dirs, i = [], [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a in ("--config-dir", "-cd") and i + 1 < len(argv):
+            dirs.append(os.path.abspath(argv[i + 1]))
+            i += 2
+            continue
+        if a.startswith("--config-dir="):
+            dirs.append(os.path.abspath(a.split("=", 1)[1]))
+        else:
+            rest.append(a)
+        i += 1
+    return rest, dirs
+
+
+def yaml_error_line(exc: BaseException) -> str:
+    """One line for a config file that does not parse, e.g. "/home/me/conf/experiment/mine.yaml: not valid YAML:
+    expected ',' or ']', but got ':' (line 2, column 6)"."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+    name = getattr(mark, "name", None) or "a config file"
+    return f"{name}: not valid YAML: {problem}{where}"
+
+
+def _precheck_sweep(argv: list[str]) -> None:
+    """For a multirun: Hydra composes every job's config before it launches any, and one value of the wrong type
+    or a misspelled key stops the whole sweep with a many-line message.  Check each swept value against the schema
+    first (microseconds each, no composition) and say which one in one line, exit code 2.  Group choices, ``+key``
+    additions and ``hydra.*`` keys are left to Hydra; value errors (ranges, u_min < u_max) are reported per job."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+    from omegaconf.errors import OmegaConfBaseException
+    try:
+        overrides = OverridesParser.create().parse_overrides([a for a in argv if not a.startswith("-")])
+    except HydraException:
+        return  # a syntax error: Hydra's own message names it
+    # a preset or group file that is not YAML stops a sweep with a traceback: compose once with the overrides
+    # that are not sweeps and report only that
+    _compose_or_exit([a for a, ov in zip([a for a in argv if not a.startswith("-")], overrides)
+                      if not ov.is_sweep_override()], only_yaml=True)
+    from .schema import filled
+    schema = filled(_register_schema())
+    for ov in overrides:
+        key = ov.key_or_group
+        if ov.is_add() or ov.is_delete() or key.startswith("hydra") or "." not in key:
+            continue
+        values = list(ov.sweep_iterator()) if ov.is_sweep_override() else [ov.value()]
+        for value in values:
+            try:
+                OmegaConf.update(schema, key, value, merge=True)
+            except (OmegaConfBaseException, AssertionError) as exc:
+                if not isinstance(exc, OmegaConfBaseException):
+                    continue  # not a schema path (e.g. inside a free-form mapping): Hydra decides
+                wrapped = HydraException(f"Sweep value {key}={value!r} does not fit the config schema")
+                wrapped.__cause__ = exc
+                print(f"kexp: error: {composition_error_line(wrapped)}", file=sys.stderr)
+                sys.exit(2)
