@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kexp.app.report import ReportError
+from kexp.app.aggregate import ReportError
 from kexp.app.results import COLUMNS
 from kexp.app.robustness import load, table
 

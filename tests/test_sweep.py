@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from kexp.app import aggregate as agg
 from kexp.app import report as rep
 
 QUICK = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
@@ -152,7 +153,7 @@ def test_job_without_summary_is_counted_as_failed(joblib_sweep, tmp_path, capsys
     sweep = tmp_path / "sweep"
     shutil.copytree(joblib_sweep, sweep, ignore=shutil.ignore_patterns("*.mcap", "*.npz", "report*", "*.png"))
     (sweep / "1" / "summary.json").unlink()  # as a job that crashed before its run started
-    rows = rep.aggregate(sweep)
+    rows = agg.aggregate(sweep)
     assert [r["job"] for r in rows] == ["0", "1"]
     assert rows[0]["ok"] and rows[0]["success"] is True
     bad = rows[1]
@@ -173,16 +174,16 @@ def test_job_without_summary_is_counted_as_failed(joblib_sweep, tmp_path, capsys
     # a run killed mid-way leaves the 'running' summary that run() writes first
     (sweep / "1" / "summary.json").write_text(json.dumps({"status": "running", "completed": False,
                                                           "config_hash": "x"}))
-    bad = rep.aggregate(sweep)[1]
+    bad = agg.aggregate(sweep)[1]
     assert not bad["ok"] and bad["status"] == "interrupted" and "status 'running'" in bad["reason"]
     # a diverged run completed its summary but is a failure, with the simulator's message
     s = json.loads((sweep / "0" / "summary.json").read_text())
     s.update(status="diverged", message="state left ‖x‖ ≤ 1e+06 at t=1.230")
     s["metrics"]["success"] = False
     (sweep / "1" / "summary.json").write_text(json.dumps(s))
-    bad = rep.aggregate(sweep)[1]
+    bad = agg.aggregate(sweep)[1]
     assert not bad["ok"] and bad["status"] == "diverged" and bad["reason"] == "status 'diverged': " + s["message"]
-    assert rep.summarize(rep.aggregate(sweep))[0]["failed"] == 1
+    assert agg.summarize(agg.aggregate(sweep))[0]["failed"] == 1
 
 
 def test_jobs_the_sweep_never_started_are_listed(joblib_sweep, tmp_path):
@@ -191,11 +192,11 @@ def test_jobs_the_sweep_never_started_are_listed(joblib_sweep, tmp_path):
     # as if the sweep had planned a third initial condition and stopped before launching it
     mr = sweep / "multirun.yaml"
     mr.write_text(mr.read_text().replace("sim.x0=[0.5,0.5],[1.5,1.5]", "sim.x0=[0.5,0.5],[1.5,1.5],[0.0,-1.0]"))
-    rows = rep.aggregate(sweep)
+    rows = agg.aggregate(sweep)
     assert len(rows) == 3 and [r["ok"] for r in rows] == [True, True, False]
     assert rows[2]["status"] == "not started" and rows[2]["x0"] == [0.0, -1.0]
     assert rows[2]["job"] == "(not started #2)" and rows[2]["reason"].startswith("not started")
-    assert rep.summarize(rows)[0]["runs"] == 3 and rep.summarize(rows)[0]["successes"] == 1
+    assert agg.summarize(rows)[0]["runs"] == 3 and agg.summarize(rows)[0]["successes"] == 1
 
 
 def test_report_errors_exit_2_with_one_line(tmp_path, capsys):
@@ -246,7 +247,7 @@ def test_a_broken_job_does_not_stop_the_sweep(tmp_path):
     assert "kexp: error: sim.x0=[0.1, 0.2, 0.3]" in proc.stderr
     assert f"give 2 finite numbers (job #0: {sweep / '0'})" in proc.stderr  # which job, in the same line
     assert [ln[:12] for ln in proc.stdout.splitlines() if not ln.startswith("[")] == ["#1 SUCCESS ("]
-    rows = rep.aggregate(sweep)
+    rows = agg.aggregate(sweep)
     assert sorted(r["status"] for r in rows) == ["completed", "error"]
 
 

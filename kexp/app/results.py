@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .report import ReportError, aggregate
+from .aggregate import ReportError, aggregate
 
 COLUMNS = ["x0_1", "x0_2", "status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms",
            "max_abs_u", "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing", "sim_noise",

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .report import ReportError
+from .aggregate import ReportError
 
 KINDS = ("lmpc", "lqr", "nmpc")
 
