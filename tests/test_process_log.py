@@ -176,3 +176,34 @@ def test_ctrl_c_is_the_runs_and_a_dead_child_is_reported(tmp_path, run):
             dead.log_step(rec, st, model)
         dead.close()
     dead.abandon()                                       # after the error: a no-op, never raises
+
+
+def test_the_child_runs_the_callers_kexp_found_through_sys_path(tmp_path):
+    """A caller that found kexp by changing ``sys.path`` (a copy here, first on its path; the installed kexp is
+    also importable): the writer process is started on the caller's ``sys.path``, so it runs the same copy — and
+    checks that it does, so that two versions never write one log."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import kexp
+    copy = tmp_path / "elsewhere"
+    shutil.copytree(Path(kexp.__file__).parent, copy / "kexp", ignore=shutil.ignore_patterns("__pycache__"))
+    script = (f"import sys; sys.path.insert(0, {str(copy)!r})\n"
+              "import kexp\n"
+              f"assert kexp.__file__.startswith({str(copy)!r}), kexp.__file__\n"
+              "from kexp.recording.process_log import ProcessRunLogger\n"
+              f"with ProcessRunLogger({str(tmp_path / 'run.mcap')!r}) as lg:\n"
+              "    lg.write('/config', 0.0, {'config': {'a': 1}, 'config_hash': 'h'})\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert read_log(tmp_path / "run.mcap").one("/config") == {"config": {"a": 1}, "config_hash": "h"}
+
+    # the check itself: a child that imported kexp from elsewhere says so, and the log is not written by it
+    lg = ProcessRunLogger(tmp_path / "other.mcap")
+    lg._frames.clear()
+    lg._frame(b"O", pickle.dumps((str(lg.path), 1.0, 0, str(copy / "kexp" / "recording" / "process_log.py"))))
+    lg._push()
+    with pytest.raises(RuntimeError, match="two copies of kexp"):
+        lg.close()

@@ -1,8 +1,10 @@
 """ProcessRunLogger: a run log written by a separate process, so that the control loop only hands its numbers over.
 
 A writer thread cannot take the encoding off the loop: the encoding needs the GIL, and the loop then waits for it
-(README, "Logging overhead").  Here a child process (``python -m kexp.recording.process_log``, started with the
-logger; it imports numpy, orjson and zstandard, not scipy, ~0.2 s) runs a synchronous :class:`RunLogger` on the
+(README, "Logging overhead").  Here a child process (this module's :func:`main`, started with the logger on the
+caller's ``sys.path``, so that it runs the caller's kexp and packages even where the caller found them by changing
+``sys.path``, and checked to; it imports numpy, orjson and zstandard, not scipy, ~0.2 s) runs a synchronous
+:class:`RunLogger` on the
 same calls: the loop keeps each step's record and, when RunLogger would flush (every ``flush_every`` simulated
 seconds), packs the records' fields with ``marshal`` (arrays stacked as bytes; ~2.4 µs per step, ~5 µs between
 control steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
@@ -45,6 +47,8 @@ _HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
 _PIPE_SIZE = 1 << 20
 _F_SETPIPE_SZ = 1031            # Linux fcntl
 _FIX = "; rerun, or write the log in the run's process: logging.writer=sync"
+# the child: the caller's sys.path (its argv) before anything is imported, then main; no interpreter shutdown
+_CHILD = ("import sys; sys.path[:] = sys.argv[1:]; from kexp.recording.process_log import _child; _child()")
 # what marshal keeps as it is (it writes any other object with a buffer, a numpy scalar say, as bytes)
 _PLAIN = frozenset({float, int, str, bool, type(None)})
 _scalars = attrgetter(*SCALARS)
@@ -154,14 +158,14 @@ class ProcessRunLogger(LogHelpers):
         self._frames: list = []                 # frames packed, in file order, for the next hand-over
         self._closed = False
         # its own session: a Ctrl-C at the terminal reaches the run, whose handler ends the log (abandon or close)
-        self._proc = subprocess.Popen([sys.executable, "-m", "kexp.recording.process_log"], stdin=subprocess.PIPE,
+        self._proc = subprocess.Popen([sys.executable, "-c", _CHILD, *map(str, sys.path)], stdin=subprocess.PIPE,
                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
         try:
             import fcntl
             fcntl.fcntl(self._proc.stdin.fileno(), _F_SETPIPE_SZ, _PIPE_SIZE)
         except (ImportError, OSError):          # not Linux, or above the system's limit: the default pipe
             pass
-        self._frame(b"O", pickle.dumps((str(self.path), flush_every, prediction_every)))
+        self._frame(b"O", pickle.dumps((str(self.path), flush_every, prediction_every, __file__)))
         self._push()
 
     # -- the loop's side ---------------------------------------------------------------------------------------
@@ -300,7 +304,10 @@ def main() -> int:
             continue                  # keep reading: the caller must never block on a full pipe
         try:
             if kind == b"O":
-                path, flush_every, prediction_every = pickle.loads(data)
+                path, flush_every, prediction_every, caller_module = pickle.loads(data)
+                if os.path.realpath(caller_module) != os.path.realpath(__file__):
+                    raise RuntimeError(f"the log writer process runs {__file__}, the run {caller_module}: "
+                                       "two copies of kexp")
                 # chunks compressed here, at once: a compression thread would only add its hand-over to close()
                 logger = RunLogger(path, flush_every=flush_every, prediction_every=prediction_every,
                                    compress_thread=False)
@@ -329,7 +336,13 @@ def main() -> int:
     return 0
 
 
-if __name__ == "__main__":
+def _child() -> None:
+    """The writer process's entry: :func:`main`, then exit without the interpreter's shutdown (the file is closed
+    and the result sent; a shutdown costs 20–40 ms of CPU)."""
     code = main()
     sys.stderr.flush()
-    os._exit(code)      # the file is closed and the result sent: no interpreter shutdown (20–40 ms of CPU)
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    _child()
