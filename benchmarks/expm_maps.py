@@ -3,9 +3,9 @@
 augmented generator M = [[Λ + Σ u_i B_i, Σ u_i b_i], [0, 0]]Δ and its Fréchet derivative along each input's
 direction, two ways, side by side on the same generators (issue 14):
 
-* ``taylor × m``: one :func:`kexp.control.kernels.expm_frechet` call per input (Taylor on the pairs (A^j, ∂A^j),
+* ``taylor × m``: one :func:`kexp.control.expm_kernels.expm_frechet` call per input (Taylor on the pairs (A^j, ∂A^j),
   2^s from ‖M‖∞/0.5) — the general path's kernel until this round;
-* ``padé shared``: :func:`kexp.control.kernels.expm_frechet_pade`, the [13/13] Padé approximant and its derivative
+* ``padé shared``: :func:`kexp.control.expm_kernels.expm_frechet_pade`, the [13/13] Padé approximant and its derivative
   with the powers, numerator, denominator and LU shared by the inputs (what ``block_maps_expm`` calls now).
 
 The model is the scaling benchmark's two-input one (slow manifold, both states actuated, degree 5: k = 20, m = 2);
@@ -30,7 +30,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.linalg as sla  # noqa: E402
 
-from kexp.control.kernels import _augmented, _directions, expm_frechet, expm_frechet_pade  # noqa: E402
+from kexp.control.expm_kernels import expm_frechet, expm_frechet_pade  # noqa: E402
+from kexp.control.kernels import _augmented, _directions  # noqa: E402
 from kexp.systems import SlowManifold  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -8,7 +8,8 @@ from kexp.clf import ClfConfig, synthesize_clf
 from kexp.control import ExplicitController, Lmpc, LmpcConfig, make_law
 from kexp.control.blocking import block_of_step, block_sizes
 from kexp.control.condense import block_maps_expm, block_maps_poly, condense
-from kexp.control.kernels import expm_frechet, expm_frechet_pade, rollout, rollout_poly, rollout_sensitivity
+from kexp.control.expm_kernels import expm_frechet, expm_frechet_pade
+from kexp.control.kernels import rollout, rollout_poly, rollout_sensitivity
 from kexp.control.qp import DenseQp
 from kexp.control.zoh_poly import series_expm, zoh_degree, zoh_polynomial
 from kexp.data import Circle, DataConfig, collect
@@ -410,7 +411,7 @@ def test_expm_small_matches_scipy(norm):
     """The kernel's expm (scaling and squaring, Taylor degree from the norm, Paterson–Stockmeyer) to rounding,
     from a zero matrix to one that needs 7 squarings."""
     import scipy.linalg as sla
-    from kexp.control.kernels import expm_small
+    from kexp.control.expm_kernels import expm_small
     rng = np.random.default_rng(3)
     M = rng.standard_normal((21, 21))
     M *= norm / max(np.max(np.abs(M).sum(axis=1)), 1e-300)

@@ -10,8 +10,8 @@ Discretisation of the bilinear model.  ``discretisation='exact'``: for the held 
 linear, ż = A_u z + c_u, and one step is expm([[A_u, c_u], [0, 0]]Δ)·[z; 1], evaluated symbolically as its Taylor
 series applied to the vector [z; 1] (q substeps of Δ/q, p terms).  q and p are chosen from an upper bound θ of
 ‖[[A_u, c_u], [0, 0]]Δ‖_∞ over the input box (θ/q ≤ 0.5 and (θ/q)^{p+1}/(p+1)!·e^{θ/q} ≤ 2⁻⁵⁶), so the truncation is
-below rounding — the same construction as kexp's numba kernel (``kernels.expm_small``, Taylor to 1e-16); CasADi's own
-``expm`` needs the SLICOT plugin, which the pip wheel lacks.  ``discretisation='rk4'`` uses classical RK4 with
+below rounding — the same construction as kexp's numba kernel (``expm_kernels.expm_small``, Taylor to 1e-16); CasADi's
+own ``expm`` needs the SLICOT plugin, which the pip wheel lacks.  ``discretisation='rk4'`` uses classical RK4 with
 ``substeps`` (default 8) per Δ.  Measured on the Van der Pol test model (Monomials(2, 3), k = 9, Δ = 0.01,
 |u| ≤ 5, 20 steps, 200 random z0 = Ψ(x0) − Ψ(0) with x0 ∈ [−1, 1]² and random inputs in [−5, 5]):
 max |z_casadi − z_kexp| = 4.9e-15 (2.3e-15 relative) for 'exact' (θ = 0.29: q = 1, p = 13), 1.8e-11 for 'rk4'

@@ -26,7 +26,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .kernels import _augmented, _directions, expm_frechet, expm_frechet_pade, poly_degree
+from .expm_kernels import expm_frechet, expm_frechet_pade
+from .kernels import _augmented, _directions, poly_degree
 
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
@@ -79,7 +80,7 @@ def block_maps_poly(coef, norms, rho, lam, B, b, dt, U, E, L):
 def block_maps_expm(lam, B, b, dt, U, E, L):
     """E[c] ← expm(M_c) and L[c, i] ← its Fréchet derivative along [[B_i, b_i], [0, 0]]Δ for every block c and
     input i, M_c = [[Λ + Σ_i U[c, i] B_i, Σ_i U[c, i] b_i], [0, 0]]Δ: any number of inputs, any input size
-    (:func:`kexp.control.kernels.expm_frechet_pade`, the exponential's work shared by the inputs)."""
+    (:func:`kexp.control.expm_kernels.expm_frechet_pade`, the exponential's work shared by the inputs)."""
     D = _directions(B, b, dt)
     for blk in range(U.shape[0]):
         expm_frechet_pade(_augmented(lam, B, b, U[blk], dt), D, E[blk], L[blk])
