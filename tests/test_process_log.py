@@ -148,12 +148,23 @@ def test_a_run_with_the_writer_process_logs_what_a_synchronous_run_does(tmp_path
     small = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
              "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11", "logging.rrd=false",
              "logging.progress=false", f"cache.dir={tmp_path / 'cache'}"]
-    hashes = []
+    from kexp.recording import process_log
+    hashes, taken = [], []
+    real = ProcessRunLogger.__init__
+
+    def init(self, *a, **kw):         # the run's logger takes the process the run started ahead
+        taken.append(process_log._SPARE[0][1] if process_log._SPARE else None)
+        real(self, *a, **kw)
+        taken.append(self._proc)
+
     for writer in ("sync", "process"):
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
             cfg = compose(config_name="config", overrides=small + [f"logging.writer={writer}"])
-        hashes.append(run(cfg, tmp_path / writer, echo=lambda *_: None)["config_hash"])
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(ProcessRunLogger, "__init__", init)
+            hashes.append(run(cfg, tmp_path / writer, echo=lambda *_: None)["config_hash"])
     assert hashes[0] == hashes[1]
+    assert len(taken) == 2 and taken[0] is not None and taken[0] is taken[1]
     res = diff_logs(tmp_path / "sync" / "run.mcap", tmp_path / "process" / "run.mcap")
     assert res.equal, res.report()
     assert len(read_log(tmp_path / "process" / "run.mcap").channels["/step"]) == 200
@@ -207,3 +218,44 @@ def test_the_child_runs_the_callers_kexp_found_through_sys_path(tmp_path):
     lg._push()
     with pytest.raises(RuntimeError, match="two copies of kexp"):
         lg.close()
+
+
+def test_a_prestarted_writer_process_takes_the_next_log(tmp_path, run):
+    """prestart() starts the writer process ahead (the app does, before identification): the next logger takes it
+    and writes the same bytes as RunLogger; an unused one ends at the next prestart or at exit; a dead one is
+    replaced, not used."""
+    import subprocess
+    import sys
+
+    from kexp.recording import process_log
+
+    process_log.prestart()
+    spare = process_log._SPARE[0][1]
+    process_log.prestart()                               # one waits at most
+    assert len(process_log._SPARE) == 1 and process_log._SPARE[0][1] is spare
+    lg = ProcessRunLogger(tmp_path / "p.mcap", prediction_every=3)
+    assert lg._proc is spare and not process_log._SPARE
+    assert _write(lg, run) == _write(RunLogger(tmp_path / "s.mcap", prediction_every=3), run)
+
+    process_log.prestart()
+    dead = process_log._SPARE[0][1]
+    dead.kill()
+    dead.wait()
+    lg = ProcessRunLogger(tmp_path / "d.mcap")           # the dead one is not used: a new process writes the log
+    assert lg._proc is not dead
+    lg.write("/config", 0.0, {"config": {}, "config_hash": "h"})
+    lg.close()
+    assert read_log(tmp_path / "d.mcap").one("/config") == {"config": {}, "config_hash": "h"}
+
+    process_log.prestart()
+    unused = process_log._SPARE[0][1]
+    process_log._drop_spare()                            # end-of-file: it ends without writing, and is reaped
+    assert unused.returncode == 0 and not process_log._SPARE and unused not in process_log._ENDED
+    script = ("from kexp.recording.process_log import prestart, _SPARE\nprestart()\n"
+              "print(_SPARE[0][1].pid, flush=True)\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    pid = int(proc.stdout)
+    import os
+    with pytest.raises(ProcessLookupError):              # ended and reaped at the caller's exit
+        os.kill(pid, 0)

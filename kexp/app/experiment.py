@@ -19,7 +19,7 @@ from ..data.streaming import bounds as data_bounds
 from ..errors import ConfigError, KexpError
 from ..identify import identify
 from ..recording.schema import plain
-from ..recording.process_log import ProcessRunLogger
+from ..recording.process_log import ProcessRunLogger, prestart as prestart_writer
 from ..recording.writer import RunLogger
 from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
@@ -129,6 +129,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
                                        sampler if file_data is None else data_bounds(file_data))
     plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
     log_cfg = build_logging(cfg.get("logging") or {})
+    if log_cfg["mcap"] and log_cfg["writer"] == "process":
+        prestart_writer()   # the writer process's imports run on the other core during data, identification, CLF
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
     cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))

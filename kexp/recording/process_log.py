@@ -157,14 +157,7 @@ class ProcessRunLogger(LogHelpers):
         self._messages: list = []               # (topic, t, encoded) written since the steps packed last
         self._frames: list = []                 # frames packed, in file order, for the next hand-over
         self._closed = False
-        # its own session: a Ctrl-C at the terminal reaches the run, whose handler ends the log (abandon or close)
-        self._proc = subprocess.Popen([sys.executable, "-c", _CHILD, *map(str, sys.path)], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
-        try:
-            import fcntl
-            fcntl.fcntl(self._proc.stdin.fileno(), _F_SETPIPE_SZ, _PIPE_SIZE)
-        except (ImportError, OSError):          # not Linux, or above the system's limit: the default pipe
-            pass
+        self._proc = _take_spare() or _spawn()
         self._frame(b"O", pickle.dumps((str(self.path), flush_every, prediction_every, __file__)))
         self._push()
 
@@ -271,6 +264,57 @@ class ProcessRunLogger(LogHelpers):
             self._proc.wait()
 
 
+def _spawn() -> subprocess.Popen:
+    """A writer process on the caller's ``sys.path``, waiting for its log (the "O" frame).  In its own session: a
+    Ctrl-C at the terminal reaches the run, whose handler ends the log (abandon or close)."""
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, *map(str, sys.path)], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        import fcntl
+        fcntl.fcntl(proc.stdin.fileno(), _F_SETPIPE_SZ, _PIPE_SIZE)
+    except (ImportError, OSError):          # not Linux, or above the system's limit: the default pipe
+        pass
+    return proc
+
+
+def prestart() -> None:
+    """Start the next :class:`ProcessRunLogger`'s writer process now, so that its start (~0.2 s of imports on the
+    other core) runs while the caller does other work — kexp's app calls it at the start of a run whose log the
+    writer process will write, before data, identification and CLF — and neither the logger's start nor a short
+    run's ``close()`` waits for it.  One waits at most; one left unused ends when the caller exits."""
+    if _SPARE and (_SPARE[0][0] != os.getpid() or _SPARE[0][1].poll() is not None):
+        _drop_spare()
+    if not _SPARE:
+        _SPARE.append((os.getpid(), _spawn()))
+
+
+def _take_spare() -> subprocess.Popen | None:
+    """The process :func:`prestart` started, if it is this process's and still running; else None."""
+    if not _SPARE:
+        return None
+    pid, proc = _SPARE.pop()
+    if pid != os.getpid():      # a forked copy of the caller: the process is its parent's
+        return None
+    if proc.poll() is not None:  # it has ended (killed, say): a new one
+        _ENDED.append(proc)
+        return None
+    return proc
+
+
+def _drop_spare() -> None:
+    """End the unused started process (end-of-file: it writes nothing and exits) and reap it; at exit too."""
+    while _SPARE:
+        pid, proc = _SPARE.pop()
+        if pid != os.getpid():
+            continue
+        try:
+            proc.stdin.close()
+        except (BrokenPipeError, OSError, ValueError):
+            pass
+        _ENDED.append(proc)
+    _reap(block=True)
+
+
 def _reap(block: bool = False) -> None:
     """Collect the writer processes that have answered (they exit at once; ``block``: wait for them)."""
     for proc in list(_ENDED):
@@ -283,7 +327,9 @@ def _reap(block: bool = False) -> None:
 
 
 _ENDED: list = []       # writer processes that have sent their result, not yet reaped
+_SPARE: list = []       # (pid of the process that started it, the writer process) from prestart, not yet used
 atexit.register(_reap, True)
+atexit.register(_drop_spare)      # first (atexit runs last-registered first)
 
 
 def main() -> int:
