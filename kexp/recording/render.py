@@ -1,4 +1,5 @@
-"""Render a kexp run log (``run.mcap``) into a Rerun recording (``run.rrd``) with a default blueprint.
+"""Render a kexp run log (``run.mcap``) into a Rerun recording (``run.rrd``) with a default blueprint (the blueprint
+and the summary document: :mod:`kexp.recording.render_view`).
 
 Headless: the recording goes straight to a file (no viewer, no network, no spawned process).  Timelines:
 ``sim_time`` (duration, the log time of each message) and ``step`` (sequence, the control step k).
@@ -28,6 +29,7 @@ import numpy as np
 
 from ..errors import KexpError
 from .reader import RunLog, read_log
+from .render_view import default_blueprint, summary_markdown
 
 APPLICATION_ID = "kexp"
 ACTIVE_CODES = {"none": 0.0, "21e": 1.0, "21f": 2.0}   # constraint activity as a number (other values: NaN)
@@ -260,53 +262,6 @@ def _log_eigenvalues(rec, rr, log: RunLog) -> bool:
     return True
 
 
-def _fmt(v: Any, spec: str = ".4g") -> str:
-    if v is None:
-        return "—"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, (int, float)):
-        return format(v, spec)
-    return str(v)
-
-
-def _summary_markdown(log: RunLog, info: dict) -> str:
-    cfg = (log.one("/config") or {})
-    conf = cfg.get("config") or {}
-    summary = log.one("/summary") or {}
-    metrics = summary.get("metrics") or {}
-    clf = log.one("/clf") or {}
-    cert = clf.get("certificate") or {}
-    model = log.one("/model") or {}
-    system = (conf.get("system") or {}).get("name", "?")
-    controller = (conf.get("controller") or {}).get("kind", "?")
-    lines = [f"# kexp run: {system}, {controller}", ""]
-    if log.warning:
-        lines += [f"> **Incomplete log:** {log.warning}", ""]
-    status = summary.get("status") or ("did not finish (log truncated)" if log.truncated else "did not finish")
-    success = metrics.get("success")
-    lines += ["| | |", "|---|---|",
-              f"| status | {status} |",
-              f"| success | {_fmt(success) if success is not None else '—'} |",
-              f"| cost J | {_fmt(metrics.get('cost'))} |",
-              f"| ‖x(T) − x_eq‖ | {_fmt(metrics.get('final_error'), '.3e')} |",
-              f"| settling time [s] | {_fmt(metrics.get('settling_time'))} |",
-              f"| max abs u | {_fmt(metrics.get('max_abs_u'))} |",
-              f"| fallbacks | {_fmt(metrics.get('fallbacks'))} |",
-              f"| time outside Ω_r [s] | {_fmt(metrics.get('time_outside_omega_r'))} |",
-              f"| CLF status | {_fmt(clf.get('status'))} |",
-              f"| r, r̂ | {_fmt(clf.get('r'))}, {_fmt(clf.get('r_hat'))} |",
-              f"| certificate | {_fmt(cert.get('verdict'))} |",
-              f"| model | k = {_fmt(model.get('k'))}, n = {_fmt(model.get('n'))}, m = {_fmt(model.get('m'))}, "
-              f"Δ = {_fmt(model.get('dt'))} s |",
-              f"| steps logged | {info['steps']} |",
-              f"| config hash | `{_fmt(cfg.get('config_hash'))}` |",
-              f"| log | `{log.path.name}` |"]
-    if summary.get("message"):
-        lines += ["", f"message: {summary['message']}"]
-    return "\n".join(lines) + "\n"
-
-
 def _phase_bounds(log: RunLog) -> tuple | None:
     """x1, x2 ranges framing the closed loop, x0, x_eq and Ω_r (not the open loop, which may run off far away)."""
     pts = [_rows([m.get("x") for m in log.messages("/step")], 2), _equilibrium(log, 2)[None]]
@@ -319,35 +274,6 @@ def _phase_bounds(log: RunLog) -> tuple | None:
     lo, hi = p.min(0), p.max(0)
     pad = 0.08 * np.maximum(hi - lo, 1e-3) + 1e-3
     return (float(lo[0] - pad[0]), float(hi[0] + pad[0])), (float(lo[1] - pad[1]), float(hi[1] + pad[1]))
-
-
-def _blueprint(rrb, *, has_phase: bool, has_eig: bool, has_timing: bool, phase_bounds=None):
-    left = [rrb.TimeSeriesView(origin="/states", name="states x(t)"),
-            rrb.TimeSeriesView(origin="/input", name="input u(t)"),
-            rrb.Horizontal(rrb.TimeSeriesView(origin="/lyapunov", contents=["/lyapunov/V", "/lyapunov/r",
-                                                                             "/lyapunov/r_hat"], name="V(t)"),
-                           rrb.TimeSeriesView(origin="/lyapunov", contents="/lyapunov/Vdot", name="V̇(t)"),
-                           name="V / V̇")]
-    bottom = [rrb.TimeSeriesView(origin="/constraints", name="constraints (active, binds, slack)")]
-    if has_timing:
-        bottom.append(rrb.TimeSeriesView(origin="/timing", name="solve time [ms]"))
-    left.append(rrb.Horizontal(*bottom, name="constraints / solve time"))
-    right = []
-    if has_phase:
-        bounds = rrb.VisualBounds2D(x_range=phase_bounds[0], y_range=phase_bounds[1]) if phase_bounds else None
-        right.append(rrb.Spatial2DView(origin="/phase", name="phase portrait x1–x2", visual_bounds=bounds))
-    if has_eig:
-        right.append(rrb.Spatial2DView(origin="/eigenvalues", name="eigenvalues (Re, Im)"))
-    tabs = []
-    if right:
-        tabs.append(rrb.Vertical(*right, row_shares=[3, 2][:len(right)], name="phase / eigenvalues"))
-    tabs += [rrb.TextDocumentView(origin="/summary", name="summary"),
-             rrb.TextDocumentView(origin="/config", name="config")]
-    return rrb.Blueprint(
-        rrb.Horizontal(rrb.Vertical(*left, name="time series"), rrb.Tabs(*tabs, active_tab=0),
-                       column_shares=[3, 2]),
-        rrb.TimePanel(timeline="sim_time"),
-        collapse_panels=False)
 
 
 # -- public API ------------------------------------------------------------------------------------------------
@@ -372,7 +298,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
     names = [str(s) for s in model.get("state_names") or []]
     steps = log.channels.get("/step", [])
     n = max((len(m.get("x") or []) for _, m in steps), default=0)
-    blueprint = _blueprint(rrb, has_phase=n == 2, has_eig=bool(model.get("eigenvalues_re")),
+    blueprint = default_blueprint(rrb, has_phase=n == 2, has_eig=bool(model.get("eigenvalues_re")),
                            has_timing=bool(log.channels.get("/timing")),
                            phase_bounds=_phase_bounds(log) if n == 2 else None)
 
@@ -391,7 +317,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
         info = _log_steps(rec, rr, log, names)
         _log_phase(rec, rr, log, info)
         _log_eigenvalues(rec, rr, log)
-        rec.log("summary", rr.TextDocument(_summary_markdown(log, info), media_type=rr.MediaType.MARKDOWN),
+        rec.log("summary", rr.TextDocument(summary_markdown(log, info), media_type=rr.MediaType.MARKDOWN),
                 static=True)
         rec.log("config", rr.TextDocument(json.dumps(conf.get("config") or {}, indent=2, sort_keys=True),
                                           media_type="text/plain"), static=True)
