@@ -249,13 +249,28 @@ def test_a_prestarted_writer_process_takes_the_next_log(tmp_path, run):
 
     process_log.prestart()
     unused = process_log._SPARE[0][1]
-    process_log._drop_spare()                            # end-of-file: it ends without writing, and is reaped
+    process_log._drop_spare()                            # it ends without writing, and is reaped
     assert unused.returncode == 0 and not process_log._SPARE and unused not in process_log._ENDED
+    import os
+    import signal
+    import time
+    process_log.prestart()                               # a forked copy of the caller holds the pipe too:
+    held = process_log._SPARE[0][1]
+    pid = os.fork()
+    if pid == 0:
+        time.sleep(30)
+        os._exit(0)
+    try:
+        t0 = time.perf_counter()
+        process_log._drop_spare()                        # the last word ends it, not end-of-file
+        assert held.returncode == 0 and time.perf_counter() - t0 < 10
+    finally:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
     script = ("from kexp.recording.process_log import prestart, _SPARE\nprestart()\n"
               "print(_SPARE[0][1].pid, flush=True)\n")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     pid = int(proc.stdout)
-    import os
     with pytest.raises(ProcessLookupError):              # ended and reaped at the caller's exit
         os.kill(pid, 0)

@@ -302,12 +302,14 @@ def _take_spare() -> subprocess.Popen | None:
 
 
 def _drop_spare() -> None:
-    """End the unused started process (end-of-file: it writes nothing and exits) and reap it; at exit too."""
+    """End the unused started process (the last word, abandon, with no log: it writes nothing and exits — not
+    end-of-file, which a forked copy of the caller holding the pipe would delay) and reap it; at exit too."""
     while _SPARE:
         pid, proc = _SPARE.pop()
         if pid != os.getpid():
             continue
         try:
+            proc.stdin.write(_HEAD.pack(b"A", 0))
             proc.stdin.close()
         except (BrokenPipeError, OSError, ValueError):
             pass
