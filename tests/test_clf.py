@@ -112,6 +112,27 @@ def test_single_state_path_equals_the_batched_law(vdp, law):
     assert worst <= 1e-12
 
 
+def test_at_keeps_its_last_answer_and_only_for_the_same_z(vdp):
+    """lyap.at(z) asked again at the same z (the closed loop asks after the LMPC) returns the kept answer, which a
+    caller cannot change (L_BV read-only); another z, or the same values in a new array after another z, is
+    computed afresh, bit for bit as a fresh QuadraticLyapunov gives it."""
+    model, clf = vdp
+    fresh = QuadraticLyapunov.from_model(model, clf.P)
+    z1, z2 = model.lift(np.array([[0.3, -0.2], [0.1, 0.4]]))
+    first = clf.lyap.at(z1)
+    assert clf.lyap.at(z1.copy()) is first                        # the same bytes: the kept answer
+    with pytest.raises(ValueError):
+        first[2][0] = 1.0
+    second = clf.lyap.at(z2)
+    assert second is not first and clf.lyap.at(z1) is not first    # one answer kept: z1 again is computed
+    for z, got in ((z2, second), (z1, clf.lyap.at(z1))):
+        V, a, beta = fresh.at(z)
+        assert got[0] == V and got[1] == a and np.array_equal(got[2], beta)
+    z3 = z1.copy()
+    z3[0] = -z3[0] if z3[0] != 0 else 1e-300                       # one entry changed: computed afresh
+    assert clf.lyap.at(z3)[0] == fresh.at(z3)[0]
+
+
 def test_lie_gain_is_minus_k_lbv(vdp):
     model, clf = vdp
     h = make_law("lie_gain", clf.lyap, -100, 100, k=0.5)

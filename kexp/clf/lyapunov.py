@@ -64,14 +64,22 @@ class QuadraticLyapunov:
         return a, beta
 
     def at(self, z: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """(V, L_ΛV, L_BV (m,)) at one state z (k,): V is :meth:`value`'s, bit for bit; the Lie derivatives are
-        :meth:`lie`'s by plain matrix-vector products (a control step's few microseconds instead of the batched
-        einsums' tens; equal to rounding)."""
+        """(V, L_ΛV, L_BV (m,), read-only) at one state z (k,): V is :meth:`value`'s, bit for bit; the Lie
+        derivatives are :meth:`lie`'s by plain matrix-vector products (a control step's few microseconds instead of
+        the batched einsums' tens; equal to rounding).  The last answer is kept: asked again at the same z (the
+        same bytes), as the closed loop asks after the LMPC did, it is returned as it is."""
         z = np.asarray(z, dtype=float)
+        key = z.tobytes()
+        last = self.__dict__.get("_last")
+        if last is not None and last[0] == key:
+            return last[1]
         V = float(self.value(z))         # V exactly as value() gives it: Ω_r's membership is decided on it
         a = float(z @ (self.Q_lam @ z))
         beta = (self.Q_b @ z) @ z + self.q_b @ z
-        return V, a, beta
+        beta.setflags(write=False)
+        out = (V, a, beta)
+        object.__setattr__(self, "_last", (key, out))   # one (bytes, answer) pair: replaced whole
+        return out
 
     def vdot(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
         a, beta = self.lie(z)
