@@ -56,6 +56,24 @@ def test_divergence_ends_the_run_with_status():
     assert 2.0 < run.t[-1] < 2.6  # e^{2t} reaches 100 at t ≈ 2.3
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_state_from_the_integrator_ends_the_run_as_diverged(monkeypatch, bad):
+    """A step that returns NaN or ±inf without raising (a plant's own integrator, say) stops the run there, as one
+    that leaves ‖x‖ ≤ diverge_bound does; the state before it is the last one kept."""
+    from kexp.simulate.stepper import HeldInputStepper
+    real = HeldInputStepper.step
+
+    def step(self, x, u, t0, t1):
+        out = real(self, x, u, t0, t1)
+        return np.array([out[0], bad]) if t0 >= 0.25 else out
+
+    monkeypatch.setattr(HeldInputStepper, "step", step)
+    s = Linear(A=((-1.0, 0.0), (0.0, -1.0)))
+    run = closed_loop(s, Constant([0.0]), np.array([1.0, 1.0]), SimConfig(T=1.0, dt=0.1))
+    assert run.status == "diverged" and "left" in run.message and "t=0.400" in run.message
+    assert np.all(np.isfinite(run.x)) and len(run.x) == 4 and not run.metrics.success
+
+
 def test_lqr_baseline_reference_costs():
     """LQR on the true linearisation (Q = I, R = 1, |u| ≤ 5) over the design study's ICs.  Measured over all 100:
     Van der Pol median 1.670, worst 4.528; pendulum 0.9005, worst 3.443 (the study: 1.674/4.536, 0.904/3.451,
