@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from kexp.recording import read_log
-from kexp.recording.process_log import ProcessRunLogger, pack_steps, unpack_steps
+from kexp.recording.process_log import ProcessRunLogger
+from kexp.recording.step_frames import pack_steps, unpack_steps
 from kexp.recording.steps import step_messages
 from kexp.recording.writer import RunLogger
 

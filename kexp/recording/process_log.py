@@ -3,11 +3,11 @@
 A writer thread cannot take the encoding off the loop: the encoding needs the GIL, and the loop then waits for it
 (README, "Logging overhead").  Here a child process (this module's :func:`main`, started with the logger on the
 caller's ``sys.path``, so that it runs the caller's kexp and packages even where the caller found them by changing
-``sys.path``, and checked to; it imports numpy, orjson and zstandard, not scipy, ~0.2 s) runs a synchronous
-:class:`RunLogger` on the
-same calls: the loop keeps each step's record and, when RunLogger would flush (every ``flush_every`` simulated
-seconds), packs the records' fields with ``marshal`` (arrays stacked as bytes; ~2.4 µs per step, ~5 µs between
-control steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
+``sys.path``, and checked to; it imports numpy, orjson and zstandard, not scipy, ~0.2 s; :func:`prestart` starts
+it ahead) runs a synchronous :class:`RunLogger` on the same calls: the loop keeps each step's record and, when
+RunLogger would flush (every ``flush_every`` simulated seconds), packs the records' fields
+(:mod:`kexp.recording.step_frames`: ``marshal``, arrays stacked as bytes; ~2.4 µs per step, ~5 µs between control
+steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
 the child rebuilds the records and, since the hand-over is the flush, encodes, frames and compresses them on the
 other core at once (at ``close()`` only the last part-second is left to it).  Other messages are encoded in the
 caller (so that their payloads may change afterwards) and go with the next hand-over, as bytes; a plan's
@@ -23,116 +23,23 @@ allows, so that a hand-over never waits for the child (100 steps are ~30–50 kB
 from __future__ import annotations
 
 import atexit
-import marshal
 import os
 import pickle
 import struct
 import subprocess
 import sys
-from itertools import chain
-from operator import attrgetter
 from pathlib import Path
 
-import numpy as np
-
 from .schema import CHANNELS, encode
+from .step_frames import pack_steps, unpack_steps
 from .writer import FlushClock, LogHelpers, RunLogger, logged_plan
 
-SCALARS = ("k", "t", "V", "Vdot", "active", "binds", "fallback", "iterations", "qp_iterations", "qp_status",
-           "reason", "region", "slack", "status", "solve_time")
-ARRAYS = ("u", "x", "z")
-OPTIONAL = ("x_meas", "w")      # read with getattr(rec, name, None), as steps.step_payload does
-FIELDS = SCALARS + ARRAYS + OPTIONAL
 _HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
 _PIPE_SIZE = 1 << 20
 _F_SETPIPE_SZ = 1031            # Linux fcntl
 _FIX = "; rerun, or write the log in the run's process: logging.writer=sync"
 # the child: the caller's sys.path (its argv) before anything is imported, then main; no interpreter shutdown
 _CHILD = ("import sys; sys.path[:] = sys.argv[1:]; from kexp.recording.process_log import _child; _child()")
-# what marshal keeps as it is (it writes any other object with a buffer, a numpy scalar say, as bytes)
-_PLAIN = frozenset({float, int, str, bool, type(None)})
-_scalars = attrgetter(*SCALARS)
-_dtype, _shape = attrgetter("dtype"), attrgetter("shape")
-
-
-def _column(values: list):
-    """A batch's arrays of one field as (dtype, shape, their bytes one after the other), or None where they are
-    not all numeric arrays of one dtype and shape (all None: ())."""
-    first = values[0]
-    if first is None:
-        return () if all(v is None for v in values) else None
-    if type(first) is not np.ndarray or first.dtype.hasobject or set(map(type, values)) != {np.ndarray}:
-        return None
-    if len(set(map(_dtype, values))) != 1 or len(set(map(_shape, values))) != 1:
-        return None
-    try:
-        data = b"".join(values)     # their buffers, C-contiguous ones only (TypeError otherwise)
-    except TypeError:
-        data = b"".join(map(np.ndarray.tobytes, values))
-    return first.dtype.str, first.shape, data
-
-
-def _rows(column, n: int) -> list:
-    if column == ():
-        return [None] * n
-    dtype, shape, data = column
-    return list(np.frombuffer(data, dtype=np.dtype(dtype)).reshape((n,) + tuple(shape)))
-
-
-def pack_steps(steps: list) -> tuple[bytes, bytes]:
-    """(frame kind, data) of a batch of (record, (dt, x̂) of its logged plan or None).  ``marshal`` (kind S) when
-    every scalar field is a Python float, int, str, bool or None and each array field holds arrays of one dtype
-    and shape (sent stacked, as bytes: ~2.4 µs per step repeated at once, ~5 µs in the loop); else ``pickle`` of
-    the values as they are (kind s: numpy scalars, lists and the like)."""
-    recs = [rec for rec, _ in steps]
-    scalars = list(map(_scalars, recs))
-    if set(map(type, chain.from_iterable(scalars))) <= _PLAIN:
-        columns = [_column([getattr(r, f) for r in recs]) for f in ARRAYS]
-        columns += [_column([getattr(r, f, None) for r in recs]) for f in OPTIONAL]
-        plans = [(i, plan[0], _column([plan[1]])) for i, (_, plan) in enumerate(steps) if plan is not None]
-        if (None not in columns and all(type(p[1]) is float and p[2] is not None for p in plans)):
-            return b"S", marshal.dumps((scalars, columns, plans))
-    rows = [(tuple([getattr(rec, f) for f in SCALARS + ARRAYS] + [getattr(rec, f, None) for f in OPTIONAL]), plan)
-            for rec, plan in steps]
-    return b"s", pickle.dumps(rows, protocol=pickle.HIGHEST_PROTOCOL)
-
-
-class _Record:
-    """A step record rebuilt in the writer process: the fields :mod:`kexp.recording.steps` reads."""
-
-    __slots__ = FIELDS
-
-    def __init__(self, values):
-        for name, value in zip(FIELDS, values):
-            setattr(self, name, value)
-
-
-class _Plan:
-    """What RunLogger.log_step reads of a control step and a model for a logged plan: ``predicted`` (here x̂
-    itself) and a model whose ``to_state`` is the identity (x̂ was computed by the caller) and whose ``dt`` is the
-    caller's model's."""
-
-    __slots__ = ("predicted", "dt")
-
-    def __init__(self, dt, x_pred):
-        self.dt, self.predicted = dt, x_pred
-
-    @staticmethod
-    def to_state(Z):
-        return Z
-
-
-def unpack_steps(kind: bytes, data: bytes) -> list:
-    """The records (and plans) of :func:`pack_steps`'s data."""
-    if kind == b"s":
-        return [(_Record(values), None if plan is None else _Plan(*plan)) for values, plan in pickle.loads(data)]
-    scalars, columns, plans = marshal.loads(data)
-    n = len(scalars)
-    arrays = [_rows(c, n) for c in columns]
-    out = [(_Record(values + tuple(a[i] for a in arrays)), None) for i, values in enumerate(scalars)]
-    for i, dt, x_pred in plans:
-        out[i] = (out[i][0], _Plan(dt, _rows(x_pred, 1)[0]))
-    return out
 
 
 class ProcessRunLogger(LogHelpers):
