@@ -6,7 +6,8 @@ time), with the chunks compressed in the loop's thread instead of McapFile's com
 (``RunLogger(compress_thread=False)``), with the writer thread (``RunLogger(background=True)``: each flush hands
 the loop's records to the thread, which encodes and writes them while the loop runs on, holding the GIL but for
 the loop's compiled kernels), and with the writer process (``ProcessRunLogger``, ``logging.writer=process``: at each
-flush time the records are packed and handed to a child process that encodes, frames and compresses them),
+flush time, and with the run's last step (``last_step``, as the app passes it), the records are packed and handed
+to a child process that encodes, frames and compresses them),
 interleaved, and prints the median wall times and their ratio, and the median over the repeats of each run's
 ratio to the no-log run of the same repeat (paired: the machine's slow drifts cancel).  Wall-time ratios between
 runs carry the machine's noise (a few % on a shared 2-core VM, at times more than the logging), so the cost of
@@ -116,7 +117,8 @@ def main():
                 if mode == "no log":
                     logger = None
                 elif background == "process":
-                    logger = ProcessRunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred)
+                    logger = ProcessRunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred,
+                                              last_step=(sim.n_steps - 1) * sim.dt)   # as the app passes it
                 else:
                     logger = RunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred, background=background,
                                        compress_thread=compress_thread)
@@ -238,13 +240,13 @@ def process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc):
             acc.clear()
             started_ahead()
             t = time.perf_counter()
-            logger = ProcessRunLogger(Path(tmp) / f"p{i}.mcap", prediction_every=20)
+            logger = ProcessRunLogger(Path(tmp) / f"p{i}.mcap", prediction_every=20, last_step=(sim.n_steps - 1) * sim.dt)
             acc["start (opening the file, taking the child started ahead)"] = time.perf_counter() - t
             log_step = timed("log_step (all: keeping the record, and at each flush time the hand-over)",
                              logger.log_step)
             closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
                         on_step=lambda rec, st: log_step(rec, st, model))
-            timed("close (all: the last part-second handed over, the child's answer waited for)", logger.close)()
+            timed("close (all: the child's answer waited for)", logger.close)()
             rows.append(dict(acc))
     print_pieces(f"the writer process (logging.writer=process), {repeat} runs, medians per run [ms]",
                  "per run [ms]", rows, 1e3)

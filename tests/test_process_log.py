@@ -46,6 +46,40 @@ def test_process_log_is_byte_identical(tmp_path, run):
     assert len(log.channels["/step"]) == len(run[3]) and len(log.channels["/prediction"]) > 0
 
 
+@pytest.mark.parametrize("last,every,between", [(1.99, None, 1), (0.43, None, 157 - 3), (1.99, 7, 27), (None, 1, 197)])
+def test_steps_handed_over_between_flushes_are_framed_at_once_to_the_same_bytes(tmp_path, run, last, every, between):
+    """Steps handed over between flushes — with the run's last step (``last_step``; 1.99 s is this run's, 0.43 s
+    one before its end, after which every step goes over at once) or every ``hand_over_every`` steps — are framed
+    by the child into the open chunk at once: the file is RunLogger's, byte for byte, a message among the steps
+    included (at step 37).  A synchronous log framing its pending messages at arbitrary steps
+    (RunLogger.frame_pending) is unchanged too."""
+    kw = dict(prediction_every=10, flush_every=0.5)
+    sync = _write(RunLogger(tmp_path / "sync.mcap", **kw), run)
+    lg = ProcessRunLogger(tmp_path / "tail.mcap", last_step=last, hand_over_every=every, **kw)
+    kinds = []
+    real = lg._frame
+
+    def frame(kind, data):
+        kinds.append(kind)
+        real(kind, data)
+
+    lg._frame = frame
+    assert _write(lg, run) == sync
+    # hand-overs between flushes (the steps at 0.5, 1 and 1.5 s are the flushes'): the last step's alone; each
+    # of the 157 steps from 0.43 s on but those three; every 7 steps since the last hand-over or message (6 before
+    # the first flush, the message at step 37 taking 35–37 along, then 7 per half-second, the last one at the last
+    # step); every step but the flushes'
+    assert len(run[3]) == 200 and kinds.count(b"F") == between
+
+    class Framing(RunLogger):
+        def log_step(self, rec, *a):
+            super().log_step(rec, *a)
+            if rec.k % 3 == 1:
+                self.frame_pending()
+
+    assert _write(Framing(tmp_path / "framing.mcap", **kw), run) == sync
+
+
 def test_odd_values_take_pickle_and_keep_their_bytes(tmp_path, run):
     """numpy scalars that are not Python numbers (marshal refuses them), float32 vectors and a list z: the pickle
     path, the same bytes."""

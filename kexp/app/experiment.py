@@ -190,9 +190,11 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     phase("controller_s")   # includes loading the compiled kernels (numba's cache) on a worker's first job
     logger = None
     if log_cfg["mcap"]:
-        writer = ProcessRunLogger if log_cfg["writer"] == "process" else RunLogger
-        logger = writer(out_dir / "run.mcap", flush_every=log_cfg["flush_every"],
-                        prediction_every=log_cfg["prediction_every"])
+        kw = dict(flush_every=log_cfg["flush_every"], prediction_every=log_cfg["prediction_every"])
+        if log_cfg["writer"] == "process":   # the last step's time: the child has the last second framed by close
+            logger = ProcessRunLogger(out_dir / "run.mcap", last_step=(sim_cfg.n_steps - 1) * sim_cfg.dt, **kw)
+        else:
+            logger = RunLogger(out_dir / "run.mcap", **kw)
         logger.log_config(cfg_dict, chash)
         logger.log_model(model)
         omega_r = level_set_boundary(model, clf.lyap, clf.r)

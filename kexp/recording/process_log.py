@@ -48,16 +48,21 @@ class ProcessRunLogger(LogHelpers):
     KeyError in the caller, as with RunLogger, and messages are encoded in the caller.  What the run logs is
     handed over when RunLogger would flush it (its :class:`~kexp.recording.writer.FlushClock`, every
     ``flush_every`` simulated seconds), so the child flushes as soon as it has it, and a killed run loses what a
-    synchronous one would; ``hand_over_every``: at most that many steps per hand-over besides (None: no limit)."""
+    synchronous one would; ``hand_over_every``: at most that many steps per hand-over besides (None: no limit).
+    ``last_step``: the time of the run's last step, where known (the app passes it): the steps since the last flush
+    are handed over with it, not left to ``close()``, and the child frames steps handed over between flushes at
+    once (into the open chunk: the same bytes), so that it has them encoded while the run ends (computing its
+    metrics, say) and ``close()`` only waits for the last chunk's compression and the file's end."""
 
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
-                 hand_over_every: int | None = None):
+                 hand_over_every: int | None = None, last_step: float | None = None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         open(self.path, "wb").close()           # the caller learns now if the file cannot be written
         self.flush_every = flush_every
         self.prediction_every = prediction_every
         self.hand_over_every = None if hand_over_every is None else max(1, int(hand_over_every))
+        self._last = None if last_step is None else float(last_step) - 1e-12   # FlushClock's margin
         _reap()
         self._clock = FlushClock(flush_every)   # RunLogger's flush times, which the child keeps itself
         self._steps: list = []                  # (record, (Z, model) or None) since the last hand-over
@@ -80,8 +85,12 @@ class ProcessRunLogger(LogHelpers):
         if self._clock.due(rec.t):
             self._hand_over()
             self._clock.advance()
-        elif self.hand_over_every is not None and len(steps) >= self.hand_over_every:
-            self._hand_over()
+            return
+        every = self.hand_over_every
+        if (every is not None and len(steps) >= every) or (self._last is not None and rec.t >= self._last):
+            self._pack()
+            self._frame(b"F", b"")              # between flushes: the child frames them at once
+            self._push()
 
     def write(self, topic: str, t: float, payload: dict) -> None:
         """Add one message, encoded here (RunLogger.write's errors, in the caller); handed over with the next
@@ -269,6 +278,8 @@ def main() -> int:
             elif kind == b"W":
                 for topic, t, encoded in pickle.loads(data):
                     logger.write_encoded(topic, t, encoded)
+            elif kind == b"F":
+                logger.frame_pending()
             else:
                 for rec, plan in unpack_steps(kind, data):
                     logger.log_step(rec, plan, plan)

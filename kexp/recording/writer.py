@@ -266,6 +266,14 @@ class RunLogger(LogHelpers):
             self._flush()
             self._clock.advance()
 
+    def frame_pending(self) -> None:
+        """Encode and frame what waits for the next flush now, into the open chunk, which the flush still closes
+        (the same bytes: segments keep their sequence numbers, and the chunk's size is checked per message); the
+        log-writer process does this with steps handed over between flushes, so that less is left for close().
+        With the writer thread the batch is the thread's to encode: nothing happens here."""
+        if self._queue is None:
+            self._frame(self._take_batch())
+
     def close(self) -> None:
         """Write what is queued, finish the file (summary and index) and close it; raises the writer thread's
         error, if any (the file is closed either way)."""
