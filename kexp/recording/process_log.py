@@ -9,7 +9,8 @@ RunLogger would flush (every ``flush_every`` simulated seconds), packs the recor
 (:mod:`kexp.recording.step_frames`: ``marshal``, arrays stacked as bytes; ~2.4 µs per step, ~5 µs between control
 steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
 the child rebuilds the records and, since the hand-over is the flush, encodes, frames and compresses them on the
-other core at once (at ``close()`` only the last part-second is left to it).  Other messages are encoded in the
+other core at once (at ``close()`` only the last part-second is left to it, or, where the run's last step is
+known, its chunk's compression).  Other messages are encoded in the
 caller (so that their payloads may change afterwards) and go with the next hand-over, as bytes; a plan's
 x̂ = C z + x_eq is computed in the caller too, as the synchronous logger would.  The file is byte-identical to
 :class:`RunLogger`'s (tests).  The child exits without the interpreter's shutdown, and is reaped later.
