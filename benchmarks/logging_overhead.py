@@ -176,17 +176,9 @@ def breakdown(s, model, clf, h, x0, sim, repeat):
               (McapFile, "flush", "closing a chunk at a flush (hand-over to the compression thread)"),
               (McapFile, "wait", "close: waiting for the last chunk's compression (zstd level 3)"),
               (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
-    rows = []
-    with patched(pieces, timed), tempfile.TemporaryDirectory() as tmp:
-        for i in range(repeat):
-            ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
-            logger = RunLogger(Path(tmp) / f"b{i}.mcap", prediction_every=20)
-            acc.clear()
-            log_step = timed("log_step (all)", logger.log_step)
-            closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
-                        on_step=lambda rec, st: log_step(rec, st, model))
-            timed("close (all)", logger.close)()
-            rows.append(dict(acc))
+    rows = timed_runs(s, model, clf, h, x0, sim, repeat, timed, acc, pieces,
+                      lambda tmp, i: (RunLogger(tmp / f"b{i}.mcap", prediction_every=20), {}),
+                      "log_step (all)", "close (all)")
     print_pieces(f"where the logging's time goes at the defaults, {repeat} runs, medians per step [µs]",
                  "per step [µs]", rows, 1e6 / sim.n_steps)
     process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc)
@@ -216,6 +208,25 @@ def patched(pieces, timed):
             setattr(owner, name, fn)
 
 
+def timed_runs(s, model, clf, h, x0, sim, repeat, timed, acc, pieces, start, log_label, close_label):
+    """``repeat`` closed loops at the defaults (plans every 20 steps) with ``pieces`` (:func:`patched`) and the
+    logger's log_step and close timed into ``acc``; ``start(tmp, i)`` gives the logger and its own timed pieces
+    (a dict of seconds).  One dict of seconds per run."""
+    rows = []
+    with patched(pieces, timed), tempfile.TemporaryDirectory() as tmp:
+        for i in range(repeat):
+            ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
+            acc.clear()                 # the start's own calls of timed pieces count (the writer's first frame)
+            logger, started = start(Path(tmp), i)
+            acc.update(started)
+            log_step = timed(log_label, logger.log_step)
+            closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
+                        on_step=lambda rec, st: log_step(rec, st, model))
+            timed(close_label, logger.close)()
+            rows.append(dict(acc))
+    return rows
+
+
 def print_pieces(title, column, rows, scale):
     """A markdown table of each piece's median over ``rows`` (dicts of seconds), times ``scale``."""
     print(f"\n{title}\n")
@@ -233,21 +244,15 @@ def process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc):
     pieces = [(process_log, "pack_steps", "packing the records (marshal, arrays as bytes)"),   # as process_log calls it
               (ProcessRunLogger, "_push", "writing to the pipe"),
               (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
-    rows = []
-    with patched(pieces, timed), tempfile.TemporaryDirectory() as tmp:
-        for i in range(repeat):
-            ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0, prediction_every=20)
-            acc.clear()
-            started_ahead()
-            t = time.perf_counter()
-            logger = ProcessRunLogger(Path(tmp) / f"p{i}.mcap", prediction_every=20, last_step=(sim.n_steps - 1) * sim.dt)
-            acc["start (opening the file, taking the child started ahead)"] = time.perf_counter() - t
-            log_step = timed("log_step (all: keeping the record, and at each flush time the hand-over)",
-                             logger.log_step)
-            closed_loop(s, ctrl, x0, sim, model=model, lyap=clf.lyap,
-                        on_step=lambda rec, st: log_step(rec, st, model))
-            timed("close (all: the child's answer waited for)", logger.close)()
-            rows.append(dict(acc))
+    def start(tmp, i):
+        started_ahead()
+        t = time.perf_counter()
+        logger = ProcessRunLogger(tmp / f"p{i}.mcap", prediction_every=20, last_step=(sim.n_steps - 1) * sim.dt)
+        return logger, {"start (opening the file, taking the child started ahead)": time.perf_counter() - t}
+
+    rows = timed_runs(s, model, clf, h, x0, sim, repeat, timed, acc, pieces, start,
+                      "log_step (all: keeping the record, and at each flush time the hand-over)",
+                      "close (all: the child's answer waited for)")
     print_pieces(f"the writer process (logging.writer=process), {repeat} runs, medians per run [ms]",
                  "per run [ms]", rows, 1e3)
 
