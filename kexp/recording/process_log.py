@@ -272,7 +272,8 @@ def main() -> int:
                 path, flush_every, prediction_every, caller_module = pickle.loads(data)
                 if os.path.realpath(caller_module) != os.path.realpath(__file__):
                     raise RuntimeError(f"the log writer process runs {__file__}, the run {caller_module}: "
-                                       "two copies of kexp")
+                                       "two copies of kexp; keep one on sys.path, or write the log in the run's "
+                                       "process: logging.writer=sync")
                 # chunks compressed here, at once: a compression thread would only add its hand-over to close()
                 logger = RunLogger(path, flush_every=flush_every, prediction_every=prediction_every,
                                    compress_thread=False)
