@@ -87,16 +87,32 @@ def test_odd_values_take_pickle_and_keep_their_bytes(tmp_path, run):
     odd = [(replace(rec, V=np.float32(rec.V), binds=np.bool_(rec.binds), u=rec.u.astype(np.float32),
                     z=list(rec.z)), st)
            for rec, st in steps[:120]]
-    kind, data = pack_steps([(rec, None) for rec, _ in odd])
+    kind, data = pack_steps([rec for rec, _ in odd])
     assert kind == b"s"
     back = [rec for rec, _ in unpack_steps(kind, data)]
     assert step_messages(back) == step_messages([rec for rec, _ in odd])
-    plain_kind, _ = pack_steps([(rec, None) for rec, _ in steps[:5]])
+    plain_kind, _ = pack_steps([rec for rec, _ in steps[:5]])
     assert plain_kind == b"S"
     kw = dict(prediction_every=10, flush_every=0.5)
     sync = _write(RunLogger(tmp_path / "sync.mcap", **kw), run, odd)
     child = _write(ProcessRunLogger(tmp_path / "proc.mcap", **kw), run, odd)
     assert child == sync
+
+
+@pytest.mark.parametrize("field,change", [("z", lambda z: np.append(z, 0.5)),        # another length
+                                          ("x", lambda x: x.reshape(-1, 1)),          # same length, 2-D
+                                          ("x", lambda x: np.stack([x, x])),          # 2-D, another shape
+                                          ("u", lambda u: u.astype(np.float32))])     # another dtype
+def test_a_column_of_mixed_shapes_or_dtypes_takes_pickle(run, field, change):
+    """One record's array of another shape (the 1-D fast path's length and ndim tests included) or dtype among
+    the batch's: not stacked, the values as they are (kind s), the same messages back."""
+    recs = [rec for rec, _ in run[3][:6]]
+    odd = recs[:3] + [replace(recs[3], **{field: change(getattr(recs[3], field))})] + recs[4:]
+    kind, data = pack_steps(odd)
+    assert kind == b"s"
+    back = [rec for rec, _ in unpack_steps(kind, data)]
+    assert getattr(back[3], field).shape == getattr(odd[3], field).shape
+    assert step_messages(back) == step_messages(odd)
 
 
 def test_errors_reach_the_caller(tmp_path):

@@ -143,8 +143,8 @@ class Lmpc:
     name = "lmpc"
 
     def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, prediction_every: int = 0):
-        """``prediction_every``: return the exact predicted z over the horizon every this many steps (0: only
-        when (21e) needs it); it costs one extra rollout."""
+        """``prediction_every``: return the exact predicted z over the horizon every this many steps (0:
+        never); it costs one extra rollout."""
         self.model, self.clf, self.law, self.cfg = model, clf, law, config
         self.prediction_every = int(prediction_every)
         self.m, self.k = model.m, model.k

@@ -6,8 +6,8 @@ caller's ``sys.path``, so that it runs the caller's kexp and packages even where
 ``sys.path``, and checked to; it imports numpy, orjson and zstandard, not scipy, ~0.2 s; :func:`prestart` starts
 it ahead) runs a synchronous :class:`RunLogger` on the same calls: the loop keeps each step's record and, when
 RunLogger would flush (every ``flush_every`` simulated seconds), packs the records' fields
-(:mod:`kexp.recording.step_frames`: ``marshal``, arrays stacked as bytes; ~2.4 µs per step, ~5 µs between control
-steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
+(:mod:`kexp.recording.step_frames`: ``marshal``, arrays stacked as bytes; ~1.5 µs per step, ~3.4 µs between
+control steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
 the child rebuilds the records and, since the hand-over is the flush, encodes, frames and compresses them on the
 other core at once (at ``close()`` only the last part-second is left to it, or, where the run's last step is
 known, its chunk's compression).  Other messages are encoded in the
@@ -33,7 +33,7 @@ from pathlib import Path
 
 from .schema import CHANNELS, encode
 from .step_frames import pack_steps, unpack_steps
-from .writer import FlushClock, LogHelpers, RunLogger, logged_plan
+from .writer import FlushClock, LogHelpers, RunLogger
 
 _HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
 _PIPE_SIZE = 1 << 20
@@ -66,7 +66,8 @@ class ProcessRunLogger(LogHelpers):
         self._last = None if last_step is None else float(last_step) - 1e-12   # FlushClock's margin
         _reap()
         self._clock = FlushClock(flush_every)   # RunLogger's flush times, which the child keeps itself
-        self._steps: list = []                  # (record, (Z, model) or None) since the last hand-over
+        self._recs: list = []                   # the records since the last hand-over
+        self._plans: list = []                  # (index in _recs, Z, model) of their logged plans
         self._messages: list = []               # (topic, t, encoded) written since the steps packed last
         self._frames: list = []                 # frames packed, in file order, for the next hand-over
         self._closed = False
@@ -77,18 +78,24 @@ class ProcessRunLogger(LogHelpers):
     # -- the loop's side ---------------------------------------------------------------------------------------
     def log_step(self, rec, control_step=None, model=None) -> None:
         """Keep one control step (as RunLogger.log_step; ``rec`` and the plan must not change until it is handed
-        over, at the next flush time)."""
-        Z = logged_plan(self.prediction_every, rec, control_step, model)
+        over, at the next flush time).  writer.logged_plan's and FlushClock.due's tests, inline: this runs at
+        every step of the loop."""
         if self._messages:
             self._pack_messages()
-        steps = self._steps
-        steps.append((rec, None if Z is None else (Z, model)))
-        if self._clock.due(rec.t):
+        every = self.prediction_every
+        recs = self._recs
+        if (every and control_step is not None and model is not None and rec.k % every == 0
+                and control_step.predicted is not None):
+            self._plans.append((len(recs), control_step.predicted, model))
+        recs.append(rec)
+        t = rec.t
+        clock = self._clock
+        if t + 1e-12 >= clock.next:
             self._hand_over()
-            self._clock.advance()
+            clock.advance()
             return
-        every = self.hand_over_every
-        if (every is not None and len(steps) >= every) or (self._last is not None and rec.t >= self._last):
+        if (self._last is not None and t >= self._last) or (self.hand_over_every is not None
+                                                             and len(recs) >= self.hand_over_every):
             self._pack()
             self._frame(b"F", b"")              # between flushes: the child frames them at once
             self._push()
@@ -99,14 +106,14 @@ class ProcessRunLogger(LogHelpers):
         if topic not in CHANNELS:
             raise KeyError(topic)
         data = encode(payload)
-        if self._steps:                         # the steps logged before it go first
+        if self._recs:                          # the steps logged before it go first
             self._pack_steps()
         self._messages.append((topic, float(t), data))
 
     def _pack_steps(self) -> None:
-        steps, self._steps = self._steps, []
-        self._frame(*pack_steps([(rec, None if plan is None else (plan[1].dt, plan[1].to_state(plan[0])))
-                                 for rec, plan in steps]))
+        recs, plans = self._recs, self._plans
+        self._recs, self._plans = [], []
+        self._frame(*pack_steps(recs, [(i, model.dt, model.to_state(Z)) for i, Z, model in plans]))
 
     def _pack_messages(self) -> None:
         messages, self._messages = self._messages, []
@@ -116,7 +123,7 @@ class ProcessRunLogger(LogHelpers):
         self._frames += (_HEAD.pack(kind, len(data)), data)
 
     def _pack(self) -> None:
-        if self._steps:
+        if self._recs:
             self._pack_steps()
         if self._messages:
             self._pack_messages()
