@@ -241,7 +241,7 @@ def process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc):
     per run (its start and close are once per run; packing and the pipe also happen inside log_step and close)."""
     from kexp.recording import process_log
 
-    pieces = [(process_log, "pack_steps", "packing the records (marshal, arrays as bytes)"),   # as process_log calls it
+    pieces = [(process_log, "pack_steps", "packing the records (one pickle, arrays as bytes)"),   # as process_log calls it
               (ProcessRunLogger, "_push", "writing to the pipe"),
               (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
     def start(tmp, i):
