@@ -137,21 +137,16 @@ class McapFile:
         finally:
             self._size = size
 
-    def _finish_chunk(self) -> None:
-        """Close the open chunk, if it holds a message: count its messages, write it (or hand it to the thread)."""
+    def _finish_chunk(self, then_flush: bool = False) -> None:
+        """Close the open chunk, if it holds a message: count its messages, write it (or hand it to the thread;
+        ``then_flush``: the stream's flush in the same hand-over, one instead of two)."""
         if not self._index:
+            if then_flush:
+                self._run(self._stream.flush)
             return
         parts, index = self._parts, self._index
         self._parts, self._size, self._index = [], 0, {}
-        start = min(min(pairs[0::2]) for pairs in index.values())
-        end = max(max(pairs[0::2]) for pairs in index.values())
-        counts = self._channel_counts
-        for channel, pairs in index.items():
-            counts[channel] = counts.get(channel, 0) + len(pairs) // 2
-        self._start_time = start if not self._message_count else min(start, self._start_time)
-        self._end_time = max(end, self._end_time)
-        self._message_count = sum(counts.values())
-        self._run(self._write_chunk, parts, start, end, index)
+        self._run(self._write_chunk, parts, index, then_flush)
 
     def _run(self, fn, *args) -> None:
         if self._thread is None:
@@ -184,8 +179,19 @@ class McapFile:
         if self._thread is not None:
             self._thread.shutdown()
 
-    def _write_chunk(self, parts: list[bytes], start: int, end: int, index: dict[int, list[int]]) -> None:
-        """The chunk record (zstd) and its message indexes; its chunk index for the summary."""
+    def _write_chunk(self, parts: list[bytes], index: dict[int, list[int]], then_flush: bool = False) -> None:
+        """The chunk's time range and counts (for the summary's statistics, which ``finish`` writes after the
+        thread's last chunk), the chunk record (zstd) and its message indexes; its chunk index for the summary;
+        ``then_flush``: the stream flushed after.  On the thread, with ``thread=True``: the caller's flush only
+        hands the chunk over."""
+        start = min(min(pairs[0::2]) for pairs in index.values())
+        end = max(max(pairs[0::2]) for pairs in index.values())
+        counts = self._channel_counts
+        for channel, pairs in index.items():
+            counts[channel] = counts.get(channel, 0) + len(pairs) // 2
+        self._start_time = start if not self._message_count else min(start, self._start_time)
+        self._end_time = max(end, self._end_time)
+        self._message_count = sum(counts.values())
         data = b"".join(parts)
         compressed = self._zstd.compress(data)
         chunk = (_CHUNK_HEAD.pack(CHUNK, 44 + len(compressed), start, end, len(data), zlib.crc32(data)) + _ZSTD
@@ -205,11 +211,12 @@ class McapFile:
         body = (struct.pack("<QQQQI", start, end, chunk_start, len(chunk) + len(compressed), 10 * len(offsets))
                 + b"".join(offsets) + _U64.pack(len(indexes)) + _ZSTD + struct.pack("<QQ", len(compressed), len(data)))
         self._chunk_indexes.append(_record(CHUNK_INDEX, body))
+        if then_flush:
+            self._stream.flush()
 
     def flush(self) -> None:
         """Close the open chunk (if it holds a message) and flush the stream."""
-        self._finish_chunk()
-        self._run(self._stream.flush)
+        self._finish_chunk(then_flush=True)
 
     def finish(self) -> None:
         """Close the open chunk, write the data end, the summary section and the footer (the stream stays open;
