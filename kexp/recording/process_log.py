@@ -6,7 +6,7 @@ caller's ``sys.path``, so that it runs the caller's kexp and packages even where
 ``sys.path``, and checked to; it imports numpy, orjson and zstandard, not scipy, ~0.2 s; :func:`prestart` starts
 it ahead) runs a synchronous :class:`RunLogger` on the same calls: the loop keeps each step's record and, when
 RunLogger would flush (every ``flush_every`` simulated seconds), packs the records' fields
-(:mod:`kexp.recording.step_frames`: one pickle, arrays stacked as bytes; ~1.2 µs per step, ~2.5 µs between
+(:mod:`kexp.recording.step_frames`: one pickle, arrays stacked as bytes; ~1.2 µs per step, ~3 µs between
 control steps, whose code evicts the packing's from the caches) and writes them to the child's stdin in one write;
 the child rebuilds the records and, since the hand-over is the flush, encodes, frames and compresses them on the
 other core at once (at ``close()`` only the last part-second is left to it, or, where the run's last step is

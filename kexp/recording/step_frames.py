@@ -63,7 +63,7 @@ def _rows(column, n: int) -> list:
 
 def pack_steps(recs: list, plans: list = ()) -> tuple[bytes, bytes]:
     """(frame kind, data) of a batch of records and the plans logged with them, (index in ``recs``, dt, x̂) each:
-    ~1.1 µs per step repeated at once (the pickle of the scalars ~0.15, faster than ``marshal`` and its check
+    ~1.2 µs per step repeated at once (the pickle of the scalars ~0.15, faster than ``marshal`` and its check
     that every value is a Python number or string, which marshal would otherwise turn into bytes)."""
     columns = [_column(list(map(get, recs))) for get in _arrays]
     columns += [_column([getattr(r, f, None) for r in recs]) for f in OPTIONAL]
