@@ -244,6 +244,7 @@ def process_breakdown(s, model, clf, h, x0, sim, repeat, timed, acc):
     pieces = [(process_log, "pack_steps", "packing the records (one pickle, arrays as bytes)"),   # as process_log calls it
               (ProcessRunLogger, "_push", "writing to the pipe"),
               (lmpc_module, "rollout_poly", "the LMPC's exact rollouts for the plans")]
+
     def start(tmp, i):
         started_ahead()
         t = time.perf_counter()

@@ -138,8 +138,9 @@ class McapFile:
             self._size = size
 
     def _finish_chunk(self, then_flush: bool = False) -> None:
-        """Close the open chunk, if it holds a message: count its messages, write it (or hand it to the thread;
-        ``then_flush``: the stream's flush in the same hand-over, one instead of two)."""
+        """Close the open chunk, if it holds a message, and write it (or hand it to the thread), its messages
+        counted with it (:meth:`_write_chunk`); ``then_flush``: the stream's flush in the same hand-over, one
+        instead of two."""
         if not self._index:
             if then_flush:
                 self._run(self._stream.flush)

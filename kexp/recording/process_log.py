@@ -33,7 +33,7 @@ from pathlib import Path
 
 from .schema import CHANNELS, encode
 from .step_frames import pack_steps, unpack_steps
-from .writer import FlushClock, LogHelpers, RunLogger
+from .writer import FlushClock, LogHelpers, RunLogger, logged_plan
 
 _HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
 _PIPE_SIZE = 1 << 20
@@ -78,24 +78,20 @@ class ProcessRunLogger(LogHelpers):
     # -- the loop's side ---------------------------------------------------------------------------------------
     def log_step(self, rec, control_step=None, model=None) -> None:
         """Keep one control step (as RunLogger.log_step; ``rec`` and the plan must not change until it is handed
-        over, at the next flush time).  writer.logged_plan's and FlushClock.due's tests, inline: this runs at
-        every step of the loop."""
+        over, at the next flush time)."""
         if self._messages:
             self._pack_messages()
-        every = self.prediction_every
         recs = self._recs
-        if (every and control_step is not None and model is not None and rec.k % every == 0
-                and control_step.predicted is not None):
-            self._plans.append((len(recs), control_step.predicted, model))
+        Z = logged_plan(self.prediction_every, rec, control_step, model)
+        if Z is not None:
+            self._plans.append((len(recs), Z, model))
         recs.append(rec)
-        t = rec.t
-        clock = self._clock
-        if t + 1e-12 >= clock.next:
+        if self._clock.due(rec.t):
             self._hand_over()
-            clock.advance()
+            self._clock.advance()
             return
-        if (self._last is not None and t >= self._last) or (self.hand_over_every is not None
-                                                             and len(recs) >= self.hand_over_every):
+        if (self._last is not None and rec.t >= self._last) or (self.hand_over_every is not None
+                                                                and len(recs) >= self.hand_over_every):
             self._pack()
             self._frame(b"F", b"")              # between flushes: the child frames them at once
             self._push()
