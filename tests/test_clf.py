@@ -5,7 +5,8 @@ from kexp.clf import ClfConfig, QuadraticLyapunov, clf_from_P, synthesize_clf
 from kexp.control import make_law
 from kexp.data import Circle, DataConfig, collect
 from kexp.dictionary import Monomials
-from kexp.errors import ConfigError
+from kexp.clf.synthesis import check_bounds
+from kexp.errors import ClfError, ConfigError
 from kexp.identify import identify
 from kexp.systems import VanDerPol
 
@@ -26,6 +27,25 @@ def test_sdp_solution_satisfies_eq40(vdp):
     lmax = np.linalg.eigvalsh(clf.P @ model.Lambda + model.Lambda.T @ clf.P)[-1]
     assert clf.sigma >= lmax - 1e-5 and abs(clf.sigma - max(lmax, 0.0)) < 1e-4 * max(1.0, abs(lmax))
     assert clf.status == "optimal"
+
+
+def test_scs_meets_the_bounds_and_clarabels_optimum(vdp):
+    """SCS (first order) at its default 1e-4 left c_lower by 0.4 % on Van der Pol; with the tolerances kexp gives
+    it, P meets [c_lower, c_upper] to the checked 1e-6 and the SDP's objective equals Clarabel's to 1e-6 (relative;
+    P itself is not unique, so it is compared by what the SDP scores)."""
+    model, clf = vdp
+    scs = synthesize_clf(model, ClfConfig(solver="SCS"))
+    eig = np.linalg.eigvalsh(scs.P)
+    assert scs.status == "optimal" and eig[0] >= 0.01 - 1e-6 and eig[-1] <= 1.0 + 1e-6
+    assert abs(scs.objective - clf.objective) <= 1e-6 * abs(clf.objective)
+
+
+def test_p_outside_the_bounds_is_refused_with_what_to_change():
+    config = ClfConfig(c_lower=0.01, c_upper=1.0)
+    check_bounds(np.diag([0.01 - 0.9e-6, 1.0 + 0.9e-6]), config)      # within 1e-6·c_upper: accepted
+    for P in (np.diag([0.00996, 1.0]), np.diag([0.01, 1.00001])):
+        with pytest.raises(ClfError, match=r"outside \[c_lower, c_upper\] = \[0.01, 1.0\].*clf.solver=CLARABEL"):
+            check_bounds(P, config)
 
 
 def test_sdp_is_homogeneous_in_the_bounds(vdp):
