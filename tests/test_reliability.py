@@ -78,6 +78,9 @@ def test_bad_input_is_refused_early_with_one_line(override, fragment, tmp_path):
     (["--multirun", "clf.gamma=1,fast"], "clf.gamma: Value 'fast' of type 'str' could not be converted to Float"),
     (["-m", "sim.T=1,2", "data.dtt=1,2"], "data.dtt: Key 'dtt' not in 'DataConfigSchema'"),
     (["sim.x0=[1,"], "no viable alternative"),
+    # a sweep's master config (its overrides that are not swept) composed as Hydra composes it, before any job
+    (["-m", "system=nope"], "Could not find 'system/nope' Available options in 'system': duffing linear"),
+    (["-m", "+experiment=nope", "sim.T=1,2"], "Could not find 'experiment/nope'"),
 ])
 def test_composition_errors_are_one_line_exit_2(argv, fragment, capsys):
     with pytest.raises(SystemExit) as ex:

@@ -34,7 +34,7 @@ def test_install_checks_the_representatives_only(monkeypatch):
     batch = [["+experiment=vanderpol", f"sim.x0=[{i},0]"] for i in range(50)] + [["+experiment=pendulum",
                                                                                  "sim.x0=[0,0]"]]
     BasicSweeper.validate_batch_is_legal(None, batch)
-    assert seen == [[batch[0], batch[50]]]
+    assert seen == [[batch[0]], [batch[50]]]
 
 
 def test_a_bad_group_choice_in_a_later_job_stops_the_sweep_before_any_job(tmp_path):
@@ -43,8 +43,11 @@ def test_a_bad_group_choice_in_a_later_job_stops_the_sweep_before_any_job(tmp_pa
     sweep = tmp_path / "sweep"
     proc: subprocess.CompletedProcess = _kexp_multirun(tmp_path, sweep, "controller=lmpc,nosuch",
                                                        "sim.x0=[0.5,0.5],[0.1,0.1]")
-    assert proc.returncode != 0
-    assert "nosuch" in proc.stderr
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert err[-1].startswith("kexp: error: In 'config': Could not find 'controller/nosuch' Available options in "
+                              "'controller': lie_gain lmpc lqr model_lqr nmpc sontag"), err
+    assert err[-1].endswith("(the sweep's jobs with controller=nosuch; no job started)"), err
     assert not list(sweep.glob("*/summary.json"))
 
 

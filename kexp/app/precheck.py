@@ -46,13 +46,12 @@ def precheck(argv: list[str]) -> None:
         return _precheck_sweep(argv)
     if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
         return
-    _compose_or_exit(argv, only_yaml=False)
+    _compose_or_exit(argv)
 
 
-def _compose_or_exit(overrides: list[str], *, only_yaml: bool) -> None:
-    """Compose the config with ``overrides``; a preset or group file that is not YAML, and (unless ``only_yaml``)
-    any composition error, is one line on stderr and exit code 2.  With ``only_yaml`` other errors are left to
-    Hydra, which composes every job of a sweep and reports them itself."""
+def _compose_or_exit(overrides: list[str]) -> None:
+    """Compose the config with ``overrides`` (a single run); a preset or group file that is not YAML or any other
+    composition error is one line on stderr and exit code 2."""
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
@@ -64,13 +63,33 @@ def _compose_or_exit(overrides: list[str], *, only_yaml: bool) -> None:
         print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
-        if only_yaml:
-            return
         print(f"kexp: error: {composition_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
-    except Exception:  # noqa: BLE001 - only_yaml=False re-raises: a bug, not bad input
-        if not only_yaml:
-            raise
+
+
+def _compose_master_or_exit(overrides: list[str]) -> None:
+    """A sweep's first step in Hydra: its master config, composed with every override the way Hydra composes it
+    for a multirun (a swept group choice is left out, a swept value not applied).  What fails there fails the
+    whole sweep before any job, in Hydra with several lines or a traceback (a config file that is not YAML):
+    here one line and exit code 2.  Each job's own composition is checked by the sweeper's batch check
+    (kexp.app.sweeper.install)."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra._internal.utils import create_config_search_path
+    from hydra.core.utils import JobRuntime
+    from hydra.errors import HydraException
+    from hydra.types import RunMode
+    from omegaconf.errors import OmegaConfBaseException
+    from yaml import YAMLError
+    JobRuntime.instance().set("name", "kexp")
+    loader = ConfigLoaderImpl(config_search_path=create_config_search_path(CONF_DIR))
+    try:
+        loader.load_configuration("config", overrides=overrides, run_mode=RunMode.MULTIRUN)
+    except YAMLError as exc:
+        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
+        sys.exit(2)
+    except (HydraException, OmegaConfBaseException, ValueError) as exc:
+        print(f"kexp: error: {composition_error_line(exc)} (no job started)", file=sys.stderr)
+        sys.exit(2)
 
 
 def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -104,8 +123,10 @@ def yaml_error_line(exc: BaseException) -> str:
 def _precheck_sweep(argv: list[str]) -> None:
     """For a multirun: Hydra composes every job's config before it launches any, and one value of the wrong type
     or a misspelled key stops the whole sweep with a many-line message.  Check each swept value against the schema
-    first (microseconds each, no composition) and say which one in one line, exit code 2.  Group choices, ``+key``
-    additions and ``hydra.*`` keys are left to Hydra; value errors (ranges, u_min < u_max) are reported per job."""
+    first (microseconds each, no composition) and say which one in one line, exit code 2; then compose the sweep's
+    master config as Hydra will (:func:`_compose_master_or_exit`).  A swept group choice that does not compose is
+    reported in one line by the sweeper's batch check (kexp.app.sweeper.install); value errors (ranges,
+    u_min < u_max) are reported per job."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import HydraException
     from omegaconf import OmegaConf
@@ -114,10 +135,6 @@ def _precheck_sweep(argv: list[str]) -> None:
         overrides = OverridesParser.create().parse_overrides([a for a in argv if not a.startswith("-")])
     except HydraException:
         return  # a syntax error: Hydra's own message names it
-    # a preset or group file that is not YAML stops a sweep with a traceback: compose once with the overrides
-    # that are not sweeps and report only that
-    _compose_or_exit([a for a, ov in zip([a for a in argv if not a.startswith("-")], overrides)
-                      if not ov.is_sweep_override()], only_yaml=True)
     from .schema import filled
     schema = filled(_register_schema())
     for ov in overrides:
@@ -135,3 +152,4 @@ def _precheck_sweep(argv: list[str]) -> None:
                 wrapped.__cause__ = exc
                 print(f"kexp: error: {composition_error_line(wrapped)}", file=sys.stderr)
                 sys.exit(2)
+    _compose_master_or_exit([a for a in argv if not a.startswith("-")])

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 import os
+import sys
 from typing import Sequence
 
 from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_dirname
@@ -43,14 +44,28 @@ def representatives(batch: Sequence[Sequence[str]]) -> list[Sequence[str]]:
 
 
 def install() -> None:
-    """Make Hydra's basic sweeper check one job per structure of each batch (idempotent)."""
+    """Make Hydra's basic sweeper check one job per structure of each batch (idempotent).  A job that does not
+    compose (an unknown group option or preset, a bad ``+``/``~`` override) stops the sweep before any job starts
+    with one line on stderr naming the job's overrides, and exit code 2, as a single run's bad input does (Hydra
+    itself prints several lines and exits 1)."""
     from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
     if getattr(BasicSweeper.validate_batch_is_legal, "_kexp", False):
         return
     check_all = BasicSweeper.validate_batch_is_legal
 
     def validate_batch_is_legal(self, batch):
-        return check_all(self, representatives(batch))
+        from hydra.errors import HydraException
+        from omegaconf.errors import OmegaConfBaseException
+
+        from .precheck import composition_error_line
+        for job in representatives(batch):
+            try:
+                check_all(self, [job])
+            except (HydraException, OmegaConfBaseException) as exc:
+                choices = " ".join(o for o in job if structure_of(o) == o)   # what decided its composition
+                print(f"kexp: error: {composition_error_line(exc)} (the sweep's jobs with {choices}; no job "
+                      "started)", file=sys.stderr)
+                sys.exit(2)
 
     validate_batch_is_legal._kexp = True
     BasicSweeper.validate_batch_is_legal = validate_batch_is_legal
