@@ -205,3 +205,35 @@ def test_dictionary_without_constant_still_gets_exact_b():
     assert err_f < 1e-8 and err_g < 1e-8
     assert np.linalg.norm(model.b) > 0.5
     assert max(model.report["input_projection_residual"]) < 1e-10
+
+
+def test_a_model_that_blows_up_scores_inf_without_a_numpy_warning():
+    """e^{800·1 s} overflows float64: the 1 s prediction error is inf, computed quietly (a RuntimeWarning from
+    numpy's norm reached the user when identifying from a single closed-loop run)."""
+    import warnings
+
+    from kexp.identify.quality import prediction_error
+    from toy import toy_model
+    data = collect(VanDerPol(), Circle(4, 1.0), DataConfig(T=2.0))
+    model = toy_model(np.diag([800.0, -1.0]), np.zeros((1, 2, 2)), dt=data.dt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert prediction_error(model, data, 100) == np.inf
+        assert 0 < prediction_error(model, data, 1) < np.inf
+
+
+@pytest.mark.parametrize("error,says", [(np.inf, "is unbounded"), (np.nan, "is unbounded"), (1.5, "is 150% off")])
+def test_a_model_worse_than_x_eq_is_flagged(monkeypatch, error, says):
+    """A model whose far prediction is worse than predicting x_eq (relative error > 1, inf or nan) carries a
+    warning that says so and what to do; a usable one does not."""
+    import sys
+    identify_module = sys.modules["kexp.identify.identify"]   # the package's name `identify` is the function
+    s = VanDerPol()
+    data = collect(s, Circle(30, 2.0), DataConfig(T=3.0))
+    good = identify(s, data, Monomials(2, 3))
+    assert not any("worse than predicting" in w for w in good.report["warnings"])
+    real = identify_module.prediction_error
+    monkeypatch.setattr(identify_module, "prediction_error",
+                        lambda model, d, h: error if h > 1 else real(model, d, h))
+    notes = identify(s, data, Monomials(2, 3)).report["warnings"]
+    assert [w for w in notes if "worse than predicting x_eq" in w and says in w and "record more runs" in w]

@@ -227,4 +227,10 @@ def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monom
     report["prediction_error"] = {"1_step": prediction_error(model, quality_data, 1),
                                   f"{config.prediction_horizon:g}_s": prediction_error(model, quality_data, h_pred)}
     report["prediction_data"] = "held-out" if test is not None else "training"
+    far = report["prediction_error"][f"{config.prediction_horizon:g}_s"]
+    if not far <= 1.0:   # worse than predicting x_eq, or overflowed: the data did not determine the model
+        notes.append(f"the model's {config.prediction_horizon:g} s prediction on the {report['prediction_data']} "
+                     f"trajectories is {'unbounded' if not np.isfinite(far) else f'{far:.0%} off'}, worse than "
+                     f"predicting x_eq: the data do not determine the dynamics (cond(Φ_X) = {fit.cond:.1e}); "
+                     "record more runs from more initial conditions (e.g. without feedback), or lower the degree")
     return model

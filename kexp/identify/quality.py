@@ -44,6 +44,11 @@ def prediction_error(model, dataset: PairSource, h: int, max_forced_windows: int
     x0, truth, U = window_samples(dataset, h, max_forced_windows if forced else 20000, inputs=forced)
     if x0.shape[0] == 0:
         return float("nan")
+    with np.errstate(over="ignore", invalid="ignore"):   # a model that blows up scores inf, without a warning
+        return _relative_error(model, x0, truth, U, h, forced)
+
+
+def _relative_error(model, x0, truth, U, h, forced) -> float:
     z0 = model.lift(x0)
     if forced:
         zh = z0
@@ -54,5 +59,7 @@ def prediction_error(model, dataset: PairSource, h: int, max_forced_windows: int
         for _ in range(h):
             zh = zh @ ad.T
     xh = model.to_state(zh)
+    if not np.isfinite(xh).all():   # overflowed (inf, or inf·0 = nan in the products): unbounded
+        return float("inf")
     denom = np.linalg.norm(truth - model.x_eq)
     return float(np.linalg.norm(xh - truth) / denom) if denom > 0 else float("nan")
