@@ -4,7 +4,8 @@
 # (the unperturbed rows <system>_lmpc|lqr|nmpc into results/, the main results table's).
 #
 #   results/robustness.sh ROW [ROW ...]     # e.g. vanderpol_lmpc-reg-noise1 pendulum_nmpc-noise3
-#   results/robustness.sh --list            # every row this script knows
+#   results/robustness.sh --list            # the rows it runs for the README's robustness table (any row of
+#                                           # the grammar below runs)
 #
 # Row names: <system>_<controller>[-reg][-noise1|-noise3][-raw|-sgN][-mu0.8|...|-c0.012]; -reg: B, b regressed
 # from excited data (G unknown); -noiseN: N % Gaussian noise (of the data's RMS) on the data and the closed loop's
@@ -50,7 +51,8 @@ ROWS=()
 for s in vanderpol pendulum; do
     if [ $s = vanderpol ]; then lo=mu0.8 hi=mu1.2; else lo=c0.008 hi=c0.012; fi
     for c in lmpc lmpc-reg; do for n in "" -noise1 -noise3; do ROWS+=("${s}_$c$n"); done; done
-    ROWS+=("${s}_lmpc-reg-$lo" "${s}_lmpc-reg-$hi")
+    ROWS+=("${s}_lmpc-reg-$lo" "${s}_lmpc-reg-$hi" "${s}_lmpc-reg-noise1-raw")
+    [ $s = vanderpol ] && ROWS+=("${s}_lmpc-reg-noise1-sg21")
     for c in lqr nmpc; do
         for v in -noise1 -noise3 "-$lo" "-$hi"; do ROWS+=("${s}_$c$v"); done
     done
