@@ -32,3 +32,10 @@ def require_number(value, key: str, *, integer: bool = False) -> None:
     ok = isinstance(value, numbers.Integral if integer else numbers.Real) and not isinstance(value, bool)
     if not ok:
         raise ConfigError(f"{key}={value!r}: expected {'an integer' if integer else 'a number'}")
+
+
+def require_seed(value, key: str) -> None:
+    """Raise a ConfigError unless ``value`` is an int >= 0 (what numpy's random generators take)."""
+    require_number(value, key, integer=True)
+    if value < 0:
+        raise ConfigError(f"{key}={value}: use an int >= 0 (a random seed)")

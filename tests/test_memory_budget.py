@@ -80,3 +80,43 @@ def test_the_estimate_bounds_the_measured_peak():
                          check=True)
     r = json.loads(out.stdout.strip().splitlines()[-1])
     assert r["estimate"] / 3 < r["grown"] < r["estimate"], r
+
+
+def test_the_run_size_estimates_bound_what_a_short_run_holds(tmp_path):
+    """What check_run_size refuses by: the estimates per data sample and per logged control step (its log read
+    back, as the rendering does) bound the peak Python allocations of a short run (tracemalloc), and a run over
+    the budget is refused by name."""
+    import tracemalloc
+
+    import numpy as np
+
+    from kexp.app.budget import check_run_size, data_bytes, loop_bytes
+    from kexp.clf import ClfConfig, synthesize_clf
+    from kexp.control import Lmpc, make_law
+    from kexp.data import Circle, DataConfig, collect
+    from kexp.dictionary import Monomials
+    from kexp.identify import identify
+    from kexp.recording.reader import read_log
+    from kexp.recording.writer import RunLogger
+    from kexp.simulate import SimConfig, closed_loop
+    from kexp.systems import VanDerPol
+    s = VanDerPol()
+    tracemalloc.start()
+    data = collect(s, Circle(40, 2.5), DataConfig(T=5.0))
+    data_peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert data_peak <= data_bytes(40, 500, s.n, s.m)
+    model = identify(s, data, Monomials(2, 5))
+    clf = synthesize_clf(model, ClfConfig())
+    ctrl = Lmpc(model, clf, make_law("sontag", clf.lyap, -5.0, 5.0), LmpcConfig(), -5.0, 5.0, prediction_every=20)
+    tracemalloc.start()
+    with RunLogger(tmp_path / "run.mcap", prediction_every=20) as log:
+        closed_loop(s, ctrl, np.array([0.7, -0.5]), SimConfig(T=3.0), model=model, lyap=clf.lyap,
+                    on_step=lambda rec, step: log.log_step(rec, step, model))
+    back = read_log(tmp_path / "run.mcap")
+    loop_peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert len(back.messages("/step")) == 300
+    assert loop_peak <= loop_bytes(300, s.n, s.m, model.k)
+    with pytest.raises(ConfigError, match=r"sim.T=1e\+06 s at Δ = 0.01 s is 1e\+08 control steps, about 824 GB for"):
+        check_run_size(SimConfig(T=1e6), s, 21)

@@ -3,6 +3,7 @@ import json
 import os
 import re
 import signal
+import sys
 import subprocess
 import time
 from pathlib import Path
@@ -50,6 +51,18 @@ BAD = [
     ("data.T=0.01", "16 training pairs"),
     ("logging.flush_every=0", "logging.flush_every=0.0: use seconds > 0"),
     ("+identification.methd=qr", "identification.methd: unknown key; valid keys:"),  # `+` bypasses the schema
+    ("+sim.dt=0", "sim.dt=0: the closed loop steps at the model's sampling time; set data.dt"),
+    ("sim.T=inf", "sim: need 0 < dt <= T < inf, got dt=0.01, T=inf"),
+    ("sim.T=1e9", "sim.T=1e+09 s at Δ = 0.01 s is 1e+11 control steps, about"),   # not 745 GiB allocated
+    ("data.T=1e7", "data: 20 trajectories of data.T=1e+07 s at Δ = 0.01 s are 2e+10 samples"),
+    ("sim.diverge_bound=0", "sim.diverge_bound=0.0: use a distance > 0"),
+    ("sim.r=-1", "sim.r=-1.0: use a finite number >= 0"),
+    ("data.seed=-1", "data.seed=-1: use an int >= 0"),
+    ("sim.noise.seed=-1", "noise.seed=-1: use an int >= 0"),
+    ("sim.disturbance.seed=-2", "sim.disturbance.seed=-2: use an int >= 0"),
+    ("identification.holdout_seed=-1", "identification.holdout_seed=-1: use an int >= 0"),
+    ("logging.flush_every=inf", "logging.flush_every=inf: use seconds > 0 (finite)"),
+    ("cache.dir=/proc/kexp-no-such", "cache.dir='/proc/kexp-no-such': cannot create it"),
 ]
 
 
@@ -168,3 +181,34 @@ def test_deterministic_channels_do_not_depend_on_blas_threads(tmp_path):
     a, b = _run_with_threads(tmp_path, 1), _run_with_threads(tmp_path, 2)
     res = diff_logs(a, b)  # exact: every deterministic channel, every field
     assert res.equal, res.report()
+
+
+@pytest.mark.parametrize("argv,fragment", [
+    (["hydra.run.dir={file}"], "hydra.run.dir={file}: '{file}' is not a folder; give a folder you can write"),
+    (["hydra.run.dir={file}/run"], "'{file}' is not a folder"),
+    (["hydra.run.dir=/proc/kexp-no-such/run"], "cannot create a folder in '/proc'"),
+    (["-m", "hydra.sweep.dir={file}", "sim.T=1,2"], "hydra.sweep.dir={file}: '{file}' is not a folder"),
+])
+def test_a_run_folder_that_cannot_be_made_is_one_line_exit_2(argv, fragment, tmp_path, capsys):
+    """Hydra makes the run folder with a traceback (FileExistsError, FileNotFoundError); kexp checks it first,
+    creating nothing (a folder made and removed at once: os.access says yes to root even in /proc)."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    with pytest.raises(SystemExit) as ex:
+        precheck([a.format(file=afile) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert ex.value.code == 2 and len(err) == 1 and fragment.format(file=afile) in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_a_bug_leaves_an_error_summary_not_a_running_one(tmp_path):
+    """An unexpected exception keeps its traceback (a bug to report) but summary.json says "error", so
+    kexp-report does not count the run as killed."""
+    script = ("import sys, kexp.app.main as m\n"
+              "def boom(*a, **k): raise RuntimeError('boom')\n"
+              f"m.run = boom; sys.argv = ['kexp', 'hydra.run.dir={tmp_path}']; m.main()\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "RuntimeError: boom" in proc.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary == {"status": "error", "completed": False, "message": "internal error: RuntimeError: boom",
+                       "error_type": "RuntimeError"}

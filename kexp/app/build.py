@@ -314,6 +314,8 @@ def build_sim(cfg: Mapping[str, Any], system, dt: float, sampler=None):
     starts from (the model is not fit there) unless ``sim.allow_outside_data``."""
     from ..simulate import SimConfig
     cfg = dict(_plain(cfg))
+    if "dt" in cfg:   # SimConfig has a dt, the model's: a sim.dt added with + would be ignored silently
+        raise ConfigError(f"sim.dt={cfg['dt']!r}: the closed loop steps at the model's sampling time; set data.dt")
     x0 = cfg.pop("x0", None)
     open_loop = bool(cfg.pop("open_loop", True))
     allow_outside = cfg.pop("allow_outside_data", False)
@@ -350,8 +352,8 @@ def build_logging(cfg: Mapping[str, Any]) -> dict:
     out = {**defaults, **cfg}
     if not (isinstance(out["prediction_every"], int) and out["prediction_every"] >= 0):
         raise ConfigError(f"logging.prediction_every={out['prediction_every']}: use an int >= 0 (0: never)")
-    if not out["flush_every"] > 0:
-        raise ConfigError(f"logging.flush_every={out['flush_every']}: use seconds > 0")
+    if not 0 < out["flush_every"] < float("inf"):   # inf would never flush: a killed run would lose its log
+        raise ConfigError(f"logging.flush_every={out['flush_every']}: use seconds > 0 (finite)")
     if out["progress"] not in ("auto", True, False):
         raise ConfigError(f"logging.progress={out['progress']!r}; valid: auto, true, false")
     if out["writer"] not in ("sync", "process"):

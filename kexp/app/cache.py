@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, TypeVar
 
+from ..errors import ConfigError
 from ..recording.schema import plain
 
 T = TypeVar("T")
@@ -55,11 +56,23 @@ def _locked(path: Path):
 
 
 class Cache:
+    """The cache in ``directory`` (None: $KEXP_CACHE_DIR or ~/.cache/kexp), created at construction when
+    ``enabled``; a folder that cannot be created or written raises ConfigError (before anything long runs)."""
+
     def __init__(self, directory: str | Path | None, enabled: bool = True):
         self.dir = Path(directory) if directory else default_cache_dir()
         self.enabled = enabled
         self.hits: list[str] = []
         self.misses: list[str] = []
+        if enabled:
+            try:
+                self.dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise ConfigError(f"cache.dir={str(self.dir)!r}: cannot create it ({type(exc).__name__}: "
+                                  f"{exc.strerror or exc}); give a writable folder, or cache.enabled=false") from None
+            if not os.access(self.dir, os.W_OK | os.X_OK):
+                raise ConfigError(f"cache.dir={str(self.dir)!r}: not writable; give a writable folder, or "
+                                  "cache.enabled=false")
 
     def get_or_create(self, name: str, create: Callable[[], T], save: Callable[[T, Path], None],
                       load: Callable[[Path], T]) -> T:

@@ -24,6 +24,7 @@ from ..recording.writer import RunLogger
 from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
+from .budget import check_run_size
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
                     build_data_noise, build_data_smoothing, build_identification, build_logging, build_plant,
                     build_sim, build_system,
@@ -140,6 +141,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     else:
         check_file_data(file_data, ident_cfg, k_max)
     check_memory_budget(spec, k_max, system.m)
+    check_run_size(sim_cfg, system, k_max, sampler if file_data is None else None, data_cfg)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
     # where the job's time goes (summary.json "timing", benchmarks/sweep.py): seconds per phase, in order

@@ -31,12 +31,25 @@ def _hydra_main(cfg: DictConfig) -> None:
             run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback
         print(f"kexp: error: {exc}" + (f" (job #{hc.job.num}: {out_dir})" if sweep_job else ""), file=sys.stderr)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "summary.json").write_text(json.dumps(
-            {"status": "error", "completed": False, "message": str(exc), "error_type": type(exc).__name__},
-            indent=2))
+        _error_summary(out_dir, exc)
         if not sweep_job:
             sys.exit(2)  # a single run: exit code 2; in a sweep the other jobs go on, the report counts this one
+    except Exception as exc:  # a bug: its traceback is Hydra's to show, but the summary says the run failed
+        _error_summary(out_dir, exc, internal=True)
+        raise
+
+
+def _error_summary(out_dir: Path, exc: BaseException, internal: bool = False) -> None:
+    """summary.json of a run that stopped with ``exc`` ("status": "error"; not "running", which kexp-report
+    reads as a killed run); ``internal``: an unexpected exception, a bug to report with its traceback."""
+    message = f"internal error: {type(exc).__name__}: {exc}" if internal else str(exc)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "summary.json").write_text(json.dumps(
+            {"status": "error", "completed": False, "message": message, "error_type": type(exc).__name__},
+            indent=2))
+    except OSError:
+        pass   # the folder itself failed: the error printed is what the user gets
 
 
 def _warnings_only(line: str) -> None:

@@ -42,11 +42,39 @@ def precheck(argv: list[str]) -> None:
             return  # both: leave it to Hydra
         # --config-dir D: Hydra adds D to the search path (after kexp's conf/); the same for this check
         argv = argv + [f"hydra.searchpath=[{','.join('file://' + d for d in config_dirs)}]"]
-    if any(a in ("-m", "--multirun") for a in argv):
+    multirun = any(a in ("-m", "--multirun") for a in argv)
+    _check_output_dir(argv, "hydra.sweep.dir" if multirun else "hydra.run.dir")
+    if multirun:
         return _precheck_sweep(argv)
     if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
         return
     _compose_or_exit(argv)
+
+
+def _check_output_dir(argv: list[str], key: str) -> None:
+    """The run's (or sweep's) folder, ``key``=DIR on the command line (else ``outputs/`` or ``multirun/`` in the
+    current folder), must be a folder kexp can create and write: else one line and exit code 2 (Hydra creates it
+    later, with a traceback).  Nothing is created here: the folder, if it exists, or its nearest existing parent
+    is checked.  A value with an interpolation (``${now:…}``) is Hydra's to resolve: its fixed prefix is checked."""
+    import os
+    import tempfile
+    from pathlib import Path
+    given = [a.split("=", 1)[1] for a in argv if "=" in a and a.split("=", 1)[0].lstrip("+") == key]
+    shown = given[-1] if given else ("multirun" if key == "hydra.sweep.dir" else "outputs")
+    path = Path(shown.split("${", 1)[0] or ".").absolute()
+    while not path.exists() and not path.is_symlink() and path != path.parent:
+        path = path.parent
+    problem = None
+    if not path.is_dir():
+        problem = f"{str(path)!r} is not a folder"
+    else:
+        try:   # a folder made and removed at once: os.access says yes to root even where nothing can be made
+            os.rmdir(tempfile.mkdtemp(prefix=".kexp-check-", dir=path))
+        except OSError as exc:
+            problem = f"cannot create a folder in {str(path)!r} ({exc.strerror or type(exc).__name__})"
+    if problem:
+        print(f"kexp: error: {key}={shown}: {problem}; give a folder you can write", file=sys.stderr)
+        sys.exit(2)
 
 
 def _compose_or_exit(overrides: list[str]) -> None:

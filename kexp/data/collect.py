@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError, DataError, require_number
+from ..errors import ConfigError, DataError, require_number, require_seed
 from ..systems.base import ControlAffineSystem
 from .dataset import PAIR_RULES, DataReport, Dataset
 from .excitation import Excitation
@@ -86,7 +86,7 @@ class DataConfig:
     def __post_init__(self):
         require_number(self.dt, "data.dt")
         require_number(self.T, "data.T")
-        require_number(self.seed, "data.seed", integer=True)
+        require_seed(self.seed, "data.seed")
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ConfigError(f"data.dt={self.dt}: the sampling time must be > 0")
         if not (np.isfinite(self.T) and self.T >= self.dt):

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, require_seed
 from .runs import PairSource
 
 
@@ -58,8 +58,7 @@ class NoiseConfig:
         _check_std(self.std, "noise.std")
         if not isinstance(self.relative, bool):
             raise ConfigError(f"noise.relative={self.relative!r}: expected true or false")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"noise.seed={self.seed!r}: expected an integer")
+        require_seed(self.seed, "noise.seed")
 
     @property
     def active(self) -> bool:

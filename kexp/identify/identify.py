@@ -14,7 +14,7 @@ from threadpoolctl import threadpool_limits
 
 from ..data.runs import PairSource, strided_samples
 from ..dictionary import Monomials
-from ..errors import ConfigError, DataError, require_number
+from ..errors import ConfigError, DataError, require_number, require_seed
 from ..systems.base import ControlAffineSystem
 from .edmd import METHODS, fit_least_squares
 from .eigen import IdentificationWarning, eigenfunctions
@@ -61,6 +61,7 @@ class IdentifyConfig:
         for key in ("rcond", "residual_horizon", "prediction_horizon", "holdout"):
             require_number(getattr(self, key), f"identification.{key}")
         require_number(self.chunk_size, "identification.chunk_size", integer=True)
+        require_seed(self.holdout_seed, "identification.holdout_seed")
         if self.method not in METHODS:
             raise ConfigError(f"identification.method={self.method!r}; valid: {METHODS}")
         if not 0 < self.rcond < 1:

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
 from ..data.noise import NoiseConfig, _check_std, _std_active, _std_vector
-from ..errors import ConfigError, require_number
+from ..errors import ConfigError, require_number, require_seed
 from .stepper import HeldInputStepper
 
 
@@ -35,8 +35,7 @@ class Disturbance:
         if isinstance(self.std, list):
             object.__setattr__(self, "std", tuple(self.std))
         _check_std(self.std, "sim.disturbance.std")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"sim.disturbance.seed={self.seed!r}: expected an integer")
+        require_seed(self.seed, "sim.disturbance.seed")
 
     @property
     def active(self) -> bool:
@@ -69,10 +68,14 @@ class SimConfig:
     def __post_init__(self):
         for key in ("T", "dt", "tol", "r", "diverge_bound"):
             require_number(getattr(self, key), f"sim.{key}")
-        if not (self.dt > 0 and self.T >= self.dt):
-            raise ConfigError(f"sim: need 0 < dt <= T, got dt={self.dt}, T={self.T}")
+        if not (self.dt > 0 and self.T >= self.dt and math.isfinite(self.T)):
+            raise ConfigError(f"sim: need 0 < dt <= T < inf, got dt={self.dt}, T={self.T}")
         if not self.tol > 0:
             raise ConfigError(f"sim.tol={self.tol}: use a number > 0")
+        if not self.diverge_bound > 0:   # inf: never stop a run as diverged
+            raise ConfigError(f"sim.diverge_bound={self.diverge_bound}: use a distance > 0 (inf: never stop)")
+        if not (math.isfinite(self.r) and self.r >= 0):
+            raise ConfigError(f"sim.r={self.r}: use a finite number >= 0")
 
     @property
     def n_steps(self) -> int:
