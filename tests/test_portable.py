@@ -183,3 +183,16 @@ def test_cli_policy_and_a_closed_pipe(tmp_path, capsys):
     other = golden.RECORDINGS / "paper_vanderpol.mcap"
     proc = subprocess.run(f"kexp-diff '{GOLDEN}' '{other}' | head -1", shell=True, capture_output=True, text=True)
     assert proc.stdout.startswith("first divergence") and proc.stderr == "", proc.stderr
+
+
+def test_golden_cli_refuses_bad_names_and_folders_before_any_run(tmp_path, capsys):
+    """Checked before the first recording's 3 s of work (an unmakeable -o failed after it, with a traceback)."""
+    from kexp.app.golden import main as golden_main
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    assert golden_main(["nope", "-o", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("golden: error: unknown recording 'nope'; valid: ")
+    assert golden_main(["paper_vanderpol", "-o", str(afile / "sub")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"golden: error: -o {afile / 'sub'}: cannot make the folder (")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]

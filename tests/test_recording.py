@@ -106,7 +106,17 @@ def test_truncated_log_still_reads_and_diffs_with_a_warning(two_runs, tmp_path):
     assert log.truncated and "truncated" in log.warning and not log.completed
     assert 0 < len(log.messages("/step")) < 100
     res = diff_logs(two_runs[0], cut)
-    assert not res.equal and res.warnings and res.first.field == "message count"
+    assert not res.equal and res.first.field == "message count"
+    assert res.warnings == (f"b ({cut}): {log.warning}",)    # which of the two, by its path
+
+
+@pytest.mark.parametrize("flag,value", [("--rtol", "inf"), ("--atol", "inf"), ("--atol", "nan"), ("--rtol", "-1")])
+def test_cli_refuses_a_tolerance_that_is_not_finite_and_nonnegative(two_runs, capsys, flag, value):
+    """--rtol inf gave a 'first divergence' at 0.0 != 0.0 (inf·0 = nan): no verdict can come from it."""
+    assert diff_main([str(two_runs[0]), str(two_runs[1]), flag, value]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"kexp-diff: error: tolerances must be finite and >= 0, got "
+                   f"rtol={float(value) if flag == '--rtol' else 0.0}, atol={float(value) if flag == '--atol' else 0.0}"]
 
 
 def test_cli_exit_codes(two_runs, tmp_path, capsys):

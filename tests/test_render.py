@@ -1,5 +1,6 @@
 """kexp.recording.render: run.mcap → run.rrd (Rerun 0.41), checked by reading the .rrd back with Rerun's reader."""
 import shutil
+from pathlib import Path
 import subprocess
 import sys
 from collections import defaultdict
@@ -305,6 +306,34 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path, capsys, name, content, ne
     err = cap.err.strip().splitlines()
     assert cap.out == "" and len(err) == 1 and err[0].startswith("kexp-render: error: ") and needle in err[0]
     assert not any(tmp_path.glob("*.rrd"))
+
+
+@pytest.mark.parametrize("output,needle", [
+    ("{tmp}/folder", "exists and is not a regular file"),
+    ("/dev/null", "output /dev/null exists and is not a regular file"),   # as root, it was replaced by a file
+    ("", "output '.' is not a file name"),
+])
+def test_cli_refuses_an_output_that_is_not_a_file_path(run_log, tmp_path, capsys, output, needle):
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(SystemExit) as exc:
+        main([str(run_log), "-o", output.format(tmp=tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and err[0].startswith("kexp-render: error: ") and needle in err[0]
+    assert Path("/dev/null").is_char_device() and sorted(p.name for p in tmp_path.iterdir()) == ["folder"]
+    assert not any((tmp_path / "folder").iterdir())
+
+
+def test_cli_refuses_a_log_without_steps(run_log, tmp_path, capsys):
+    """A log cut before its first chunk of steps: nothing to render, exit 2 (was an empty .rrd and exit 0)."""
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(run_log.read_bytes()[:5000])
+    assert not read_log(cut).channels.get("/step")
+    with pytest.raises(SystemExit) as exc:
+        main([str(cut)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and "holds no control step (/step) to render (cut.mcap is " \
+        "truncated" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap"]
 
 
 def test_console_script_exits_2_on_a_non_mcap_file(tmp_path):

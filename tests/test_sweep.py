@@ -212,6 +212,25 @@ def test_report_errors_exit_2_with_one_line(tmp_path, capsys):
 
 
 @pytest.mark.slow
+def test_report_output_and_input_errors_exit_2_with_one_line(joblib_sweep, tmp_path, capsys):
+    """-o a file, -o where no folder can be made (tracebacks before), a run.mcap given for the sweep folder."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    for argv, line in [
+        ([str(joblib_sweep), "-o", str(afile)], f"kexp-report: error: -o {afile} is a file; give a folder"),
+        ([str(joblib_sweep), "-o", "/proc/kexp-no-such/out"],
+         "kexp-report: error: cannot write the report: /proc/kexp-no-such: No such file or directory; give a "
+         "folder you can write with -o"),
+        ([str(joblib_sweep / "0" / "run.mcap")],
+         f"kexp-report: error: {joblib_sweep / '0' / 'run.mcap'} is a file; give the sweep folder (e.g. "
+         "multirun/<date>/<time>)")]:
+        with pytest.raises(SystemExit) as exc:
+            rep.main(argv)
+        assert exc.value.code == 2 and capsys.readouterr().err.strip().splitlines() == [line]
+    assert afile.read_text() == ""
+
+
+@pytest.mark.slow
 def test_submitit_local_sweep(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     sweep = tmp_path / "sweep"

@@ -48,7 +48,15 @@ def main(argv=None) -> int:
         if name not in GOLDEN:
             print(f"golden: error: unknown recording {name!r}; valid: {sorted(GOLDEN)}", file=sys.stderr)
             return 2
-        path = record(name, Path(args.out) / f"{name}.mcap")
+    out = Path(args.out)
+    try:   # before any run: a folder that cannot be made failed only after the first recording's 3 s
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"golden: error: -o {args.out}: cannot make the folder ({exc.strerror or exc}); give a folder you can "
+              "write", file=sys.stderr)
+        return 2
+    for name in args.names:
+        path = record(name, out / f"{name}.mcap")
         print(f"wrote {path}")
     return 0
 

@@ -228,10 +228,21 @@ def _main(argv) -> int:
     p.add_argument("-o", "--out", dest="out_dir", default=None, help="output folder (default: the sweep folder)")
     p.add_argument("--no-pictures", action="store_true", help="skip the PNG pictures")
     args = p.parse_args(argv)
+    if Path(args.sweep_dir).is_file():
+        print(f"kexp-report: error: {args.sweep_dir} is a file; give the sweep folder (e.g. multirun/<date>/<time>)",
+              file=sys.stderr)
+        return 2
+    if args.out_dir is not None and Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
+        print(f"kexp-report: error: -o {args.out_dir} is a file; give a folder", file=sys.stderr)
+        return 2
     try:
         res = report(args.sweep_dir, args.out_dir, pictures=not args.no_pictures)
     except ReportError as exc:
         print(f"kexp-report: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:   # an output folder that cannot be made or written (-o a file, a read-only place)
+        print(f"kexp-report: error: cannot write the report: {exc.filename}: {exc.strerror or exc}; give a folder "
+              "you can write with -o", file=sys.stderr)
         return 2
     rows = res["rows"]
     n, ok = len(rows), sum(r["ok"] for r in rows)

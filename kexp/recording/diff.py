@@ -227,7 +227,9 @@ def diff_logs(a: RunLog | str | Path, b: RunLog | str | Path, *, atol: float = 0
     pol = policy if isinstance(policy, Policy) else make_policy(policy, rtol=rtol, atol=atol)
     la = a if isinstance(a, RunLog) else read_log(a)
     lb = b if isinstance(b, RunLog) else read_log(b)
-    warnings = tuple(w for w in (la.warning, lb.warning) if w) + tuple(version_warnings(la, lb))
+    # the file's own warning names it by its name; two logs are often both run.mcap: say which, by its path
+    warnings = tuple(f"{side} ({log.path}): {log.warning}" for side, log in (("a", la), ("b", lb))
+                     if log.warning) + tuple(version_warnings(la, lb))
     ignore_ch = () if include_wall_clock else WALL_CLOCK_CHANNELS
     ignore_fields = () if include_wall_clock else WALL_CLOCK_FIELDS
     order = {name: i for i, name in enumerate(CHANNELS)}
@@ -288,6 +290,9 @@ def main(argv=None) -> int:
                         policy=args.policy)
     except (LogError, ConfigError) as exc:
         print(f"kexp-diff: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:   # a file that exists but cannot be read (permissions, a device)
+        print(f"kexp-diff: error: cannot read {exc.filename or 'a log'}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     for w in res.warnings:
         print(f"kexp-diff: warning: {w}", file=sys.stderr)

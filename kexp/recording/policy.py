@@ -34,8 +34,8 @@ class Tol:
     atol: float = 0.0
 
     def __post_init__(self):
-        if not (self.rtol >= 0 and self.atol >= 0):
-            raise ConfigError(f"tolerances must be >= 0, got rtol={self.rtol}, atol={self.atol}")
+        if not (0 <= self.rtol < float("inf") and 0 <= self.atol < float("inf")):   # inf·0 = nan: no verdict
+            raise ConfigError(f"tolerances must be finite and >= 0, got rtol={self.rtol}, atol={self.atol}")
 
     def bound(self, scale: float) -> float:
         return self.atol + self.rtol * scale

@@ -289,8 +289,15 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
     mcap_path = Path(mcap_path)
     rrd_path = Path(rrd_path) if rrd_path is not None else mcap_path.with_suffix(".rrd")
     log = read_log(mcap_path)
+    if not rrd_path.name or rrd_path.name in (".", ".."):
+        raise RenderError(f"output {str(rrd_path)!r} is not a file name; give a path such as run.rrd")
     if rrd_path.resolve() == mcap_path.resolve():
         raise RenderError(f"the recording would overwrite the log {mcap_path}; pass another output path")
+    if rrd_path.exists() and not rrd_path.is_file():   # a folder, a device, a pipe: never replaced
+        raise RenderError(f"output {rrd_path} exists and is not a regular file; give a file path such as run.rrd")
+    if not log.channels.get("/step"):
+        raise RenderError(f"{mcap_path} holds no control step (/step) to render"
+                          + (f" ({log.warning})" if log.warning else ""))
     if log.warning:
         warnings.warn(log.warning, RenderWarning, stacklevel=2)
 
@@ -325,10 +332,11 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
         done = True
     finally:
         rec.disconnect()   # closes the file sink: the footer is written and the .rrd is complete
-        if done:
-            os.replace(tmp, rrd_path)
-        else:
-            tmp.unlink(missing_ok=True)
+        try:
+            if done:
+                os.replace(tmp, rrd_path)
+        finally:
+            tmp.unlink(missing_ok=True)   # moved into place, or not: never left behind
     return rrd_path
 
 
