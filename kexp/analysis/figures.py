@@ -10,7 +10,11 @@
     kexp-figures roa SWEEP_DIR -o roa.png
     kexp-figures roa RESULTS.csv [...] --oracle ORACLE.csv -o map.png   (region map: cost ratio to the oracle,
                                                                          kexp/analysis/region_map.py)
-    kexp-figures theorem1 RUN_DIR -o thm1.png      (RUN_DIR holds run.mcap and model.npz)
+    kexp-figures theorem1 RUN_DIR -o thm1.png      (RUN_DIR holds run.mcap and model.npz; or RUN_DIR/run.mcap)
+
+``-o`` names the file to write; its suffix picks the format (.png, .pdf, .svg, ...: matplotlib's), none means .png.
+Bad input (a log without steps, CSVs of two systems, an option the kind does not use, ...) is one line on stderr,
+``kexp-figures: error: ...``, and exit code 2.
 """
 from __future__ import annotations
 
@@ -20,18 +24,56 @@ from pathlib import Path
 
 import numpy as np
 
+from ..app.results import oserror
 from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, read_log
 from .roa import _plt, roa_figure  # noqa: F401  (roa_figure: kexp-figures roa; re-exported)
+
+
+class FigureError(KexpError):
+    """The input cannot be drawn (a log without steps) or the figure cannot be written where ``-o`` says."""
 
 
 def _arr(msgs, key):
     return np.array([m[key] for m in msgs], dtype=float)
 
 
+def _steps(log, path, least: int = 1) -> list[dict]:
+    """The log's /step messages; FigureError when it holds fewer than ``least``."""
+    steps = log.messages("/step")
+    if not steps:
+        raise FigureError(f"{path}: no steps in the log (no /step message): the run stopped, or its file was cut, "
+                          "before its first step; pass the log of a run that simulated")
+    if len(steps) < least:
+        raise FigureError(f"{path}: {len(steps)} step in the log, {least} needed; pass the log of a longer run")
+    return steps
+
+
+def out_path(out: str | Path) -> Path:
+    """The file ``-o`` names as it will be written: '.png' added when it has no suffix; FigureError when it is a
+    folder, its format is not one matplotlib writes or its folder does not exist."""
+    from matplotlib.backend_bases import FigureCanvasBase
+    out = Path(out)
+    if not out.suffix and not out.is_dir():
+        out = out.with_name(out.name + ".png")
+    if out.is_dir():
+        raise FigureError(f"-o {out}: is a folder; give the file to write, e.g. {out / 'figure.png'}")
+    formats = sorted(FigureCanvasBase.get_supported_filetypes())
+    if out.suffix[1:].lower() not in formats:
+        raise FigureError(f"-o {out}: matplotlib cannot write {out.suffix} files; end the name with one of "
+                          f"{', '.join('.' + f for f in formats)}")
+    if not out.parent.is_dir():
+        raise FigureError(f"-o {out}: {out.parent} " + ("is not a folder" if out.parent.exists() else
+                                                         "does not exist") + "; create it or choose another -o")
+    return out
+
+
 def paper_figure(mcap: str | Path, out: str | Path) -> Path:
+    """The log's closed loop (and open loop) over time and in the phase plane, into ``out`` (:func:`out_path`);
+    returns the path written."""
+    out = out_path(out)
     log = read_log(mcap)
-    steps, ol = log.messages("/step"), log.messages("/open_loop")
+    steps, ol = _steps(log, mcap), log.messages("/open_loop")
     names = (log.one("/model") or {}).get("state_names") or [f"x{i + 1}" for i in range(len(steps[0]["x"]))]
     t, x = _arr(steps, "t"), _arr(steps, "x")
     plt = _plt()
@@ -66,7 +108,6 @@ def paper_figure(mcap: str | Path, out: str | Path) -> Path:
     name = (cfg.get("system") or {}).get("name")  # a log written from Python may have no /config
     fig.suptitle(f"{name}: open loop vs closed loop" if name else "open loop vs closed loop")
     fig.tight_layout()
-    out = Path(out)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
@@ -74,19 +115,26 @@ def paper_figure(mcap: str | Path, out: str | Path) -> Path:
 
 def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) -> tuple[Path, dict]:
     """The bound and the measured error of the model's open-loop prediction under the logged inputs, over the
-    first ``horizon`` seconds of the run."""
+    first ``horizon`` seconds of the run.  ``run_dir``: the run's folder (run.mcap and model.npz) or its run.mcap."""
     from ..app.build import build_system
     from ..identify import KoopmanBilinearModel
     from .theorem1 import estimate_constants, measured_error
+    out = out_path(out)
     run_dir = Path(run_dir)
-    log = read_log(run_dir / "run.mcap")
+    mcap = run_dir / "run.mcap"
+    if run_dir.is_file() or (run_dir.suffix == ".mcap" and not run_dir.is_dir()):
+        if run_dir.suffix != ".mcap":
+            raise FigureError(f"{run_dir}: not a run folder nor an .mcap log; pass the run's folder (holding "
+                              "run.mcap and model.npz) or its run.mcap")
+        run_dir, mcap = run_dir.parent, run_dir
+    log = read_log(mcap)
     model = KoopmanBilinearModel.load(run_dir / "model.npz")
     cfg = (log.one("/config") or {}).get("config") or {}
     try:
         system = build_system(cfg["system"])
     except SystemDefinitionError as exc:  # a user's module (system.name=module:Class) not on PYTHONPATH here
         raise SystemDefinitionError(f"{run_dir}: cannot rebuild the run's system: {exc}") from None
-    steps = log.messages("/step")
+    steps = _steps(log, mcap, least=2)
     t, x, u = _arr(steps, "t"), _arr(steps, "x"), _arr(steps, "u")
     ctrl = cfg.get("controller") or {}
     k = min(len(u) - 1, int(round(horizon / model.dt)))
@@ -103,7 +151,6 @@ def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) 
     ax.legend(fontsize=8)
     ax.set_title("prediction error vs Theorem 1")
     fig.tight_layout()
-    out = Path(out)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out, {"nu": consts.nu, "l_x": consts.l_x, "max_ratio_error_to_bound": float(np.max(err[1:] / bound[1:]))}
@@ -113,29 +160,28 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(prog="kexp-figures", description="Figures from kexp logs and sweeps.")
     p.add_argument("kind", choices=["paper", "roa", "theorem1"])
     p.add_argument("source", nargs="+", help="run.mcap (paper), a sweep folder or results CSVs (roa), a run folder "
-                   "(theorem1)")
-    p.add_argument("-o", "--out", required=True, help="the PNG to write")
+                   "or its run.mcap (theorem1)")
+    p.add_argument("-o", "--out", required=True, help="the figure to write (.png; .pdf, .svg, ... by the suffix)")
     p.add_argument("--oracle", help="roa from results CSVs: the oracle's CSV over the same x0 (a region map)")
     args = p.parse_args(argv)
-    csvs = [s for s in args.source if s.endswith(".csv")]
-    if args.kind == "roa" and (csvs or args.oracle):
-        if len(csvs) != len(args.source) or not args.oracle:
-            p.error("a region map takes results CSVs only (kexp-results collect) and --oracle ORACLE.csv")
-    elif len(args.source) != 1:
-        p.error(f"{args.kind} takes one source, got {len(args.source)}")
+    try:
+        _check_sources(args)
+        out = out_path(args.out)
+    except FigureError as exc:
+        _fail(str(exc))
     source = args.source[0]
     try:
         if args.kind == "paper":
-            out = paper_figure(source, args.out)
+            out = paper_figure(source, out)
         elif args.kind == "roa" and args.oracle:
             from .region_map import region_map
-            out, panels = region_map(args.source, args.oracle, args.out)
+            out, panels = region_map(args.source, args.oracle, out)
             for f in panels:
                 print(f"{f['label']}: success {f['successes']}/{f['runs']}, where the oracle succeeds "
                       f"{f['both']}/{f['oracle_successes']}, J/J_oracle median {f['median_ratio']:.3f}, worst "
                       f"{f['worst_ratio']:.3f}")
         elif args.kind == "roa":
-            out, facts = roa_figure(source, args.out)
+            out, facts = roa_figure(source, out)
             for g in facts["groups"]:
                 print(f"{g['label']}: n = {g['n']}, success {g['successes']}/{g['runs']}"
                       + (f" ({g['runs'] - g['drawn']} without a usable x0, not drawn)" if g["drawn"] < g["runs"]
@@ -145,14 +191,44 @@ def main(argv=None) -> None:
             if len(facts["failed"]) > 20:
                 print(f"  ... and {len(facts['failed']) - 20} more (kexp-report lists them all)")
         else:
-            out, facts = theorem1_figure(source, args.out)
+            out, facts = theorem1_figure(source, out)
             print(f"ν = {facts['nu']:.4g}, l_x = {facts['l_x']:.4g}, max error/bound = "
                   f"{facts['max_ratio_error_to_bound']:.3g}")
-    except (KexpError, LogError, OSError, KeyError) as exc:  # e.g. the run's own system module not importable
-        print(f"kexp-figures: error: {exc}", file=sys.stderr)
-        sys.exit(2)
+    except (KexpError, LogError, KeyError) as exc:  # e.g. the run's own system module not importable
+        _fail(str(exc))
+    except OSError as exc:
+        _fail(oserror(exc))
     print(f"wrote {out}")
     sys.exit(0)
+
+
+def _fail(message: str) -> None:
+    print(f"kexp-figures: error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def _check_sources(args) -> None:
+    """FigureError (one line) when the sources or --oracle do not fit the kind."""
+    csvs = [s for s in args.source if s.endswith(".csv")]
+    if args.kind != "roa" and args.oracle:
+        raise FigureError(f"--oracle is for roa with results CSVs (a region map); {args.kind} does not use it: "
+                          "drop it")
+    if args.kind == "roa" and csvs:
+        if len(csvs) != len(args.source):
+            others = [s for s in args.source if not s.endswith(".csv")]
+            raise FigureError(f"roa takes one sweep folder, or results CSVs with --oracle, not both: {others[0]} "
+                              "is not a .csv")
+        if not args.oracle:
+            system = Path(csvs[0]).stem.partition("_")[0]
+            raise FigureError(f"--oracle is missing: a region map from results CSVs needs the oracle's CSV over the "
+                              f"same x0, e.g. --oracle {Path(csvs[0]).with_name(f'{system}_nmpc.csv')}")
+    elif args.kind == "roa" and args.oracle:
+        raise FigureError("--oracle is for a region map from results CSVs (kexp-results collect); a sweep folder's "
+                          "roa figure does not use it: drop it, or pass the sweep's results CSVs")
+    elif len(args.source) != 1:
+        raise FigureError(f"{args.kind} takes one source, got {len(args.source)}: "
+                          + {"paper": "one run.mcap", "roa": "one sweep folder (or results CSVs with --oracle)",
+                             "theorem1": "one run folder"}[args.kind])
 
 
 if __name__ == "__main__":

@@ -17,11 +17,12 @@ the oracle's CSV over the same initial conditions.  One panel per controller:
 """
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
 
+from ..app.aggregate import ReportError
+from ..app.results import read_csv, split_name
 from ..errors import KexpError
 from .roa import _plt
 
@@ -32,22 +33,13 @@ class RegionMapError(KexpError):
     """The CSVs cannot be drawn as a region map (unreadable, missing columns, no common initial conditions)."""
 
 
-NEEDED = ("x0_1", "x0_2", "status", "success", "cost")
-
-
 def read_results(path: str | Path) -> dict[tuple[float, float], dict]:
-    """{x0: {'ok': completed, 'success': bool, 'cost': float}} from a results CSV; RegionMapError names what is
-    wrong with the file."""
-    path = Path(path)
+    """{x0: {'ok': completed, 'success': bool, 'cost': float}} from a results CSV, checked as kexp-results checks
+    it (:func:`kexp.app.results.read_csv`); RegionMapError names what is wrong with the file."""
     try:
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
-    except OSError as exc:
-        raise RegionMapError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    missing = [c for c in NEEDED if rows and c not in rows[0]]
-    if not rows or missing:
-        raise RegionMapError(f"{path}: not a results CSV (kexp-results collect): "
-                             + (f"missing columns {missing}" if rows else "no rows"))
+        rows = read_csv(path)
+    except ReportError as exc:
+        raise RegionMapError(str(exc)) from None
     out = {}
     for r in rows:
         if r["x0_1"] in ("", None) or r["x0_2"] in ("", None):
@@ -70,6 +62,14 @@ def compare(runs: dict, oracle: dict) -> dict:
             "worst_ratio": float(np.max(ratios)) if ratios.size else float("nan")}
 
 
+def _system(path: Path) -> str:
+    """The system of a results CSV: the CSVs do not record it, their names do (``<system>_<config>.csv``)."""
+    try:
+        return split_name(path)[0]
+    except ReportError as exc:
+        raise RegionMapError(str(exc)) from None
+
+
 def _label(path: Path) -> str:
     return path.stem.replace("_", ": ", 1)
 
@@ -81,9 +81,13 @@ def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, v
     initial condition with the oracle."""
     oracle = Path(oracle)
     ref = read_results(oracle)
+    system = _system(oracle)
     panels = []
     for p in map(Path, csvs):
         runs = read_results(p)
+        if _system(p) != system:
+            raise RegionMapError(f"{p} holds runs of {_system(p)}, the oracle's {oracle} of {system} (the system is "
+                                 "the file name's part before '_'); compare a system's CSVs with its own oracle")
         facts = compare(runs, ref)
         if facts["common"] == 0:
             raise RegionMapError(f"{p}: no initial condition in common with the oracle's {oracle}: run both over "
@@ -94,7 +98,10 @@ def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, v
     fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels) + 1.0, 4.9), squeeze=False)
     pts = np.array(list(ref))
     o_succ = np.array([ref[k]["success"] for k in ref], float)
-    tri = Triangulation(pts[:, 0], pts[:, 1]) if len(pts) >= 3 else None
+    try:
+        tri = Triangulation(pts[:, 0], pts[:, 1]) if len(pts) >= 3 else None
+    except (RuntimeError, ValueError):   # x0 on one line (qhull: singular input): no region to outline
+        tri = None
     sc = None
     for ax, (p, runs, facts) in zip(axes[0], panels):
         keys = list(runs)

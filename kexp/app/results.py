@@ -7,11 +7,15 @@ ratio to the oracle (nonlinear MPC with the true model) on the same initial cond
 
 The condensed CSVs are small and committed, so the table can be regenerated (and is, by a test) without
 re-running the sweeps.  A CSV's name is ``<system>_<config>.csv``; the oracle of a system is its ``*_nmpc.csv``.
+:func:`read_csv` checks a CSV as ``collect`` writes it (also for ``kexp-figures roa --oracle``): bad input is a
+:class:`~kexp.app.aggregate.ReportError` of one line naming the file, the line and the column.
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import math
+import re
 import sys
 from pathlib import Path
 
@@ -22,13 +26,99 @@ from .aggregate import ReportError, aggregate
 COLUMNS = ["x0_1", "x0_2", "status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms",
            "max_abs_u", "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing", "sim_noise",
            "mismatch"]
+NEEDED = ("x0_1", "x0_2", "status", "success", "cost")       # every reader; CSVs before 'controller' lack the rest
+TABLE_NEEDED = NEEDED + ("settling_time_s", "solve_median_ms", "solve_p99_ms", "certificate")
+NUMERIC = ("x0_1", "x0_2", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms", "max_abs_u", "fallbacks",
+           "data_noise", "sim_noise")            # '' (unknown) or a finite number; settling_time_s may be 'inf'
+SUCCESS = ("True", "False", "")                  # what collect writes: the run's success, '' when it has none
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9.+-]*_[A-Za-z0-9.+-][A-Za-z0-9._+-]*")
+HINT = "pass a results CSV written by kexp-results collect"
+
+
+def split_name(path: str | Path) -> tuple[str, str]:
+    """(system, configuration) of a results CSV named ``<system>_<configuration>.csv``; ReportError otherwise."""
+    stem = Path(path).stem
+    if not NAME.fullmatch(stem):
+        raise ReportError(f"{path}: the file name is not <system>_<configuration>.csv (e.g. pendulum_lmpc.csv); "
+                          "rename it so that the system and the configuration can be read from it")
+    system, _, config = stem.partition("_")
+    return system, config
+
+
+def oserror(exc: OSError) -> str:
+    """'PATH: what went wrong' of an OSError, without Python's '[Errno N]'."""
+    what = exc.strerror or str(exc)
+    return f"{exc.filename}: {what}" if exc.filename else what
+
+
+def read_csv(path: str | Path, needed=NEEDED) -> list[dict]:
+    """The rows of a results CSV (``collect``'s), each a dict of strings, after checking that the file is a text
+    CSV with a ``<system>_<configuration>`` name, the ``needed`` columns and at least one row, that the numeric
+    columns hold numbers ('' for unknown) and ``success`` holds True, False or ''.  ReportError (one line) names
+    the file, the line and the column otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise ReportError(f"{path}: is a folder; pass the CSV files in it (e.g. {path}/*.csv)")
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:   # -sig: a spreadsheet's byte-order mark
+            reader = csv.DictReader(f)
+            header = reader.fieldnames
+            if not header:
+                raise ReportError(f"{path}: empty file, not a results CSV; {HINT}")
+            missing = [c for c in needed if c not in header]
+            if missing:
+                raise ReportError(f"{path}: not a results CSV: missing columns {', '.join(missing)}; {HINT}")
+            rows = []
+            for r in reader:
+                if None in r or None in r.values():
+                    raise ReportError(f"{path}, line {reader.line_num}: {'more' if None in r else 'fewer'} fields "
+                                      f"than the header's {len(header)}; {HINT}")
+                rows.append((reader.line_num, r))
+    except UnicodeDecodeError:
+        raise ReportError(f"{path}: not a text CSV (binary data: an .mcap log?); {HINT}") from None
+    except csv.Error as exc:
+        raise ReportError(f"{path}: not a CSV ({exc}); {HINT}") from None
+    except OSError as exc:
+        raise ReportError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if not rows:
+        raise ReportError(f"{path}: a results CSV with no rows (only the header); collect it again from its sweep")
+    split_name(path)
+    for line, r in rows:
+        for col in NUMERIC:
+            v = r.get(col)
+            if v in ("", None):
+                continue
+            try:
+                x = float(v)
+            except ValueError:
+                x = math.nan
+            if math.isnan(x) or (math.isinf(x) and not (col == "settling_time_s" and x > 0)):
+                raise ReportError(f"{path}, line {line}: column {col} holds {v!r}, not a finite number "
+                                  "('' when unknown); fix or collect the CSV again")
+        if r["success"] not in SUCCESS:
+            raise ReportError(f"{path}, line {line}: column success holds {r['success']!r}; collect writes True, "
+                              "False or '' (no result): fix or collect the CSV again")
+        if r["success"] == "True" and r["cost"] == "":
+            raise ReportError(f"{path}, line {line}: a success without a cost; fix or collect the CSV again")
+    return [r for _, r in rows]
 
 
 def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
+    if not NAME.fullmatch(name):
+        raise ReportError(f"NAME {name!r}: give <system>_<configuration>, e.g. pendulum_lmpc (letters, digits, "
+                          "'.', '+', '-'; no path: choose the folder with -o)")
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ReportError(f"-o {out_dir}: is a file; give the folder to write {name}.csv into")
     rows = aggregate(sweep_dir)
-    out = Path(out_dir) / f"{name}.csv"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out, "w", newline="") as f:
+    out = out_dir / f"{name}.csv"
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ReportError(f"-o {out_dir}: cannot create the folder: {oserror(exc)}") from None
+    if out.is_dir():
+        raise ReportError(f"{out}: is a folder; remove it or choose another -o")
+    with open(out, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(COLUMNS)
         for r in sorted(rows, key=lambda r: tuple(r["x0"] or [np.inf, np.inf])):
@@ -40,9 +130,17 @@ def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
     return out
 
 
-def _load(path: Path) -> list[dict]:
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+def _load_all(paths, needed) -> dict[str, list[dict]]:
+    """{file stem: rows} of ``paths`` (read_csv); the same file twice counts once, two files of one name refused."""
+    data, where = {}, {}
+    for p in sorted(map(Path, paths)):
+        stem = p.stem
+        if stem in where and where[stem].resolve() != p.resolve():
+            raise ReportError(f"{where[stem]} and {p}: two CSVs named {p.name}; one row per "
+                              "<system>_<configuration>: pass one of them")
+        if stem not in where:
+            where[stem], data[stem] = p, read_csv(p, needed)
+    return data
 
 
 def _f(v: str) -> float:
@@ -50,7 +148,7 @@ def _f(v: str) -> float:
 
 
 def table(paths: list[str | Path]) -> str:
-    data = {Path(p).stem: _load(Path(p)) for p in sorted(paths)}
+    data = _load_all(paths, TABLE_NEEDED)
     lines = ["| system | configuration | success | median J | worst J | J / J_oracle median | J / J_oracle worst "
              "| median settling [s] | solve median / p99 [ms] | certificate |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
@@ -84,7 +182,7 @@ def main(argv=None) -> None:
     c = sub.add_parser("collect", help="condense a sweep into NAME.csv")
     c.add_argument("sweep")
     c.add_argument("name", help="<system>_<configuration>, e.g. pendulum_lmpc; the oracle is <system>_nmpc")
-    c.add_argument("-o", "--out", default="results")
+    c.add_argument("-o", "--out", default="results", help="the folder to write NAME.csv into (created)")
     t = sub.add_parser("table", help="print the Markdown results table")
     t.add_argument("csv", nargs="+")
     rb = sub.add_parser("robustness", help="print the Markdown robustness table (kexp.app.robustness)")
@@ -98,8 +196,11 @@ def main(argv=None) -> None:
             print(robustness_table(args.csv))
         else:
             print(table(args.csv))
-    except (ReportError, OSError) as exc:
+    except ReportError as exc:
         print(f"kexp-results: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    except OSError as exc:
+        print(f"kexp-results: error: {oserror(exc)}", file=sys.stderr)
         sys.exit(2)
     sys.exit(0)
 

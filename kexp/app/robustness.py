@@ -11,7 +11,6 @@ plant; the LQR (true linearisation) and the oracle know the plant, so only the L
 """
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -35,14 +34,14 @@ def _conditions(name: str, row: dict) -> tuple:
 def load(paths) -> dict:
     """{(system, controller, inputs, noise, smoothing, mismatch): (file name, {x0: (success, cost)})} over
     ``paths``;
-    raises :class:`ReportError` when a CSV mixes conditions or two CSVs hold the same ones."""
+    raises :class:`ReportError` when a CSV is not a results CSV (:func:`kexp.app.results.read_csv`), mixes
+    conditions or two CSVs hold the same ones."""
+    from .results import read_csv, split_name
     out: dict = {}
-    for p in sorted(Path(p) for p in paths):
-        with open(p, newline="") as f:
-            rows = list(csv.DictReader(f))
-        if not rows:
-            continue
-        system = p.stem.partition("_")[0]
+    unique = {Path(p).resolve(): Path(p) for p in sorted(map(Path, paths), reverse=True)}  # a file given twice
+    for p in sorted(unique.values()):
+        rows = read_csv(p)
+        system = split_name(p)[0]
         keys = {_conditions(p.stem, r) for r in rows if r.get("status") == "completed"} or \
             {_conditions(p.stem, rows[0])}
         if len(keys) > 1:
