@@ -12,6 +12,8 @@ from kexp.analysis.figures import main
 from kexp.app.results import COLUMNS
 from kexp.recording import RunLogger
 
+from cli import refused, run_main
+
 MCAP_BYTES = b"\x89MCAP0\r\n" + bytes(range(256)) * 4
 
 
@@ -58,18 +60,11 @@ def _csv(path, success=None, cost=None, n=4):
 
 
 def _run(capsys, *argv):
-    with pytest.raises(SystemExit) as exc:
-        main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return exc.value.code, cap.out, cap.err.strip().splitlines()
+    return run_main(main, capsys, *argv)
 
 
 def _refused(capsys, fragment, *argv):
-    code, out, err = _run(capsys, *argv)
-    assert code == 2 and len(err) == 1, (code, err)
-    assert err[0].startswith("kexp-figures: error: ") and fragment in err[0], err
-    assert "wrote" not in out
-    return err[0]
+    return refused(main, "kexp-figures", capsys, fragment, *argv)
 
 
 def test_a_log_without_steps(tmp_path, capsys):

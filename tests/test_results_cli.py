@@ -9,6 +9,8 @@ import pytest
 
 from kexp.app.results import COLUMNS, main
 
+from cli import refused, run_main
+
 MCAP_BYTES = b"\x89MCAP0\r\n" + bytes(range(256)) * 4     # an .mcap's magic and binary data
 
 
@@ -33,19 +35,11 @@ def _write(path, rows=None, header=COLUMNS):
 
 
 def _run(capsys, *argv):
-    """(exit code, stdout, stderr lines) of kexp-results ARGV."""
-    with pytest.raises(SystemExit) as exc:
-        main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return exc.value.code, cap.out, cap.err.strip().splitlines()
+    return run_main(main, capsys, *argv)
 
 
 def _refused(capsys, fragment, *argv):
-    code, out, err = _run(capsys, *argv)
-    assert code == 2 and len(err) == 1, (code, err)
-    assert err[0].startswith("kexp-results: error: ") and fragment in err[0], err
-    assert out == ""
-    return err[0]
+    return refused(main, "kexp-results", capsys, fragment, *argv)
 
 
 @pytest.mark.parametrize("cmd", ["table", "robustness"])
