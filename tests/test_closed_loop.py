@@ -96,3 +96,58 @@ def test_bad_initial_condition_and_dt_mismatch():
         closed_loop(s, Constant([0.0]), np.array([np.nan, 0.0]))
     with pytest.raises(ConfigError, match="2 finite numbers"):
         closed_loop(s, Constant([0.0]), np.array([0.1, 0.2, 0.3]))
+
+
+@pytest.fixture(scope="module")
+def vdp_parts():
+    from kexp.clf import ClfConfig, synthesize_clf
+    from kexp.control import Lmpc, LmpcConfig, make_law
+    from kexp.data import Circle, DataConfig, collect
+    from kexp.dictionary import Monomials
+    from kexp.identify import identify
+    s = VanDerPol()
+    model = identify(s, collect(s, Circle(30, 2.0), DataConfig(T=3.0)), Monomials(2, 3))
+    clf = synthesize_clf(model, ClfConfig())
+    ctrl = Lmpc(model, clf, make_law("sontag", clf.lyap, -5.0, 5.0), LmpcConfig(horizon=20, blocks=None), -5.0, 5.0)
+    small = identify(s, collect(s, Circle(30, 2.0), DataConfig(T=3.0)), Monomials(2, 2))
+    return s, model, clf, ctrl, small
+
+
+def test_parts_that_do_not_fit_are_refused_before_the_first_step(vdp_parts):
+    """A tester's cases: a 1-input controller on a 2-input plant ran 'completed' with u copied to both inputs;
+    a controller on z without a model, another model's k or lyap failed inside numpy."""
+    s, model, clf, ctrl, small = vdp_parts
+    two_inputs = Linear(A=((-1.0, 0.0), (0.0, -1.0)), B=((1.0, 0.0), (0.0, 1.0)))
+    x0, cfg = np.array([0.5, 0.5]), SimConfig(T=0.1)
+    cases = [
+        (lambda: closed_loop(two_inputs, ctrl, x0, cfg, model=model),
+         "the model has n=2 state(s) and m=1 input(s), the system 'linear' n=2 and m=2"),
+        (lambda: closed_loop(two_inputs, Constant([0.3]), x0, cfg),
+         "returned u of shape (1,); the system 'linear' has m=2 input(s)"),
+        (lambda: closed_loop(s, ctrl, x0, cfg), "works on z = Ψ(x) (k=9): pass closed_loop(..., model=<its model>)"),
+        (lambda: closed_loop(s, ctrl, x0, cfg, model=small), "works on k=9 eigen-coordinates, the model given to "
+                                                              f"closed_loop has k={small.k}"),
+        (lambda: closed_loop(s, LqrController(s, -5.0, 5.0), x0, cfg, model=small, lyap=clf.lyap),
+         f"lyap is a V = zᵀPz on k=9 coordinates, the model has k={small.k}"),
+        (lambda: closed_loop(s, ctrl, x0, cfg, model=model, noise_scale=[np.nan, 1.0]),
+         "noise_scale=[nan, 1.0]: give 2 finite numbers > 0"),
+        (lambda: closed_loop(s, ctrl, "ab", cfg, model=model), "initial condition 'ab': need 2 finite numbers"),
+    ]
+    assert model.k == 9 and small.k != 9
+    for call, fragment in cases:
+        with pytest.raises(ConfigError) as err:
+            call()
+        assert fragment in str(err.value) and "\n" not in str(err.value), str(err.value)
+    run = closed_loop(s, ctrl, x0, cfg, model=model, lyap=clf.lyap, noise_scale=[1.0, 1.0])   # all fitting: runs
+    assert run.status == "completed" and len(run.records) == 10
+
+
+@pytest.mark.parametrize("kwargs,fragment", [
+    ({"T": 0.015}, "sim.T=0.015 is not a whole number of steps of dt=0.01; use e.g. sim.T=0.02"),
+    ({"tol": float("inf")}, "sim.tol=inf: use a finite number > 0"),
+    ({"noise": None}, "sim.noise=None: expected a NoiseConfig"),
+    ({"integrator": None}, "sim.integrator=None: expected a IntegratorOptions"),
+])
+def test_sim_config_refuses(kwargs, fragment):
+    with pytest.raises(ConfigError, match=fragment.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        SimConfig(**kwargs)

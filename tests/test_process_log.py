@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from kexp.errors import ConfigError
 from kexp.recording import read_log
 from kexp.recording.process_log import ProcessRunLogger
 from kexp.recording.step_frames import pack_steps, unpack_steps
@@ -115,7 +116,7 @@ def test_a_column_of_mixed_shapes_or_dtypes_takes_pickle(run, field, change):
     assert step_messages(back) == step_messages(odd)
 
 
-def test_errors_reach_the_caller(tmp_path):
+def test_errors_reach_the_caller(tmp_path, run):
     (tmp_path / "a_file").write_text("")
     with pytest.raises(OSError):                        # the file is created at once, in the caller
         ProcessRunLogger(tmp_path / "a_file" / "x.mcap")
@@ -127,9 +128,15 @@ def test_errors_reach_the_caller(tmp_path):
     payload["config"]["a"].append(2)                    # encoded at the call: a later change is not logged
     lg.close()
     assert [p["config"] for _, p in read_log(tmp_path / "ok.mcap").channels["/config"]] == [{"a": [1]}]
-    # an error in the child (a negative time stamp MCAP cannot store) is raised by close(), unchanged
+    neg = ProcessRunLogger(tmp_path / "neg.mcap")
+    with pytest.raises(ConfigError, match=r"log time t=-1.0: use a finite number of seconds >= 0"):
+        neg.write("/timing", -1.0, {"k": 0, "t": -1.0, "solve_time": 0.0})   # refused in the caller, at once
+    neg.close()
+    # an error in the child (a step's negative time stamp, which MCAP cannot store) is raised by close(), unchanged
+    model, _, _, steps = run
+    rec, st = steps[0]
     bad = ProcessRunLogger(tmp_path / "bad.mcap")
-    bad.write("/timing", -1.0, {"k": 0, "t": -1.0, "solve_time": 0.0})
+    bad.log_step(replace(rec, t=-1.0), st, model)
     with pytest.raises(struct.error):
         bad.close()
     bad.close()                                          # closing again is a no-op

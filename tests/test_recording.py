@@ -1,4 +1,5 @@
 import json
+import re
 import subprocess
 from pathlib import Path
 
@@ -12,6 +13,7 @@ from kexp.app.experiment import run
 from kexp.recording import copy_log, diff_logs, read_log
 from kexp.recording.diff import main as diff_main
 from kexp.recording.schema import _DUMPS, encode, plain
+from kexp.recording.writer import RunLogger
 
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=1.0", "clf.grid=11", "logging.rrd=false", "logging.progress=false",
@@ -145,3 +147,30 @@ def test_golden_recording(name, tmp_path):
     res = diff_logs(committed, new, policy="portable")
     assert res.equal, res.report()
     assert len(read_log(committed).messages("/step")) == 200
+
+
+@pytest.mark.parametrize("kwargs,fragment", [
+    ({"flush_every": 0}, "logging.flush_every=0: use seconds > 0 (finite)"),
+    ({"flush_every": float("inf")}, "logging.flush_every=inf: use seconds > 0 (finite)"),
+    ({"flush_every": "a"}, "logging.flush_every='a': expected a number"),
+    ({"prediction_every": -1}, "logging.prediction_every=-1: use an int >= 0 (0: never)"),
+    ({"prediction_every": 2.5}, "logging.prediction_every=2.5: expected an integer"),
+])
+def test_logger_settings_are_refused_at_construction(tmp_path, kwargs, fragment):
+    from kexp.errors import ConfigError
+    with pytest.raises(ConfigError) as err:
+        RunLogger(tmp_path / "a.mcap", **kwargs)
+    assert str(err.value) == fragment and not (tmp_path / "a.mcap").exists()
+
+
+@pytest.mark.parametrize("t,payload,fragment", [
+    (float("nan"), {}, "log time t=nan"), (float("inf"), {}, "log time t=inf"), (-1.0, {}, "log time t=-1.0"),
+    ("0", {}, "log time t='0'"), (0.0, [1, 2], "payload list: a log message is a dict"),
+])
+def test_a_message_log_cannot_store_is_refused_in_the_call(tmp_path, t, payload, fragment):
+    """Was struct.error or OverflowError at the flush, or (a list) a log read_log could not read back."""
+    from kexp.errors import ConfigError
+    with RunLogger(tmp_path / "a.mcap") as log:
+        with pytest.raises(ConfigError, match=re.escape(fragment)):
+            log.write("/summary", t, payload)
+    assert read_log(tmp_path / "a.mcap").channels == {}

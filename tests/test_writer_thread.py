@@ -32,12 +32,14 @@ def test_background_log_is_byte_identical(tmp_path, run):
     assert len(sync) > 10_000 and threaded == sync
 
 
-def test_an_error_on_the_writer_thread_is_raised_in_the_callers_thread(tmp_path):
-    """A message MCAP cannot store (a negative time stamp) fails on the writer thread; the next write or close
-    raises that error, unchanged, and the file is closed."""
+def test_an_error_on_the_writer_thread_is_raised_in_the_callers_thread(tmp_path, run):
+    """A step MCAP cannot store (a negative time stamp; write() refuses one at once) fails on the writer thread;
+    the next write or close raises that error, unchanged, and the file is closed."""
     import struct
+    from dataclasses import replace
+    model, _, _, steps = run
     lg = RunLogger(tmp_path / "bad.mcap", background=True)
-    lg.write("/timing", -1.0, {"k": 0, "t": -1.0, "solve_time": 0.0})
+    lg.log_step(replace(steps[0][0], t=-1.0), steps[0][1], model)
     with pytest.raises(struct.error):
         for k in range(1, 1000):   # the thread reports it at the latest on close
             lg.write("/timing", 0.01 * k, {"k": k, "t": 0.01 * k, "solve_time": 0.0})

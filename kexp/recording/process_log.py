@@ -33,7 +33,7 @@ from pathlib import Path
 
 from .schema import CHANNELS, encode
 from .step_frames import pack_steps, unpack_steps
-from .writer import FlushClock, LogHelpers, RunLogger, logged_plan
+from .writer import FlushClock, LogHelpers, RunLogger, check_message, check_settings, logged_plan
 
 _HEAD = struct.Struct("<cI")    # frame: kind, length of what follows
 _PIPE_SIZE = 1 << 20
@@ -57,6 +57,7 @@ class ProcessRunLogger(LogHelpers):
 
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
                  hand_over_every: int | None = None, last_step: float | None = None):
+        check_settings(flush_every, prediction_every)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         open(self.path, "wb").close()           # the caller learns now if the file cannot be written
@@ -101,6 +102,7 @@ class ProcessRunLogger(LogHelpers):
         steps, or at the end."""
         if topic not in CHANNELS:
             raise KeyError(topic)
+        check_message(t, payload)
         data = encode(payload)
         if self._recs:                          # the steps logged before it go first
             self._pack_steps()

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ConfigError, require_number
 from .mcap_file import McapFile
 from .schema import CHANNELS, encode
 from .steps import log_times, prediction_message, step_messages, timing_messages
@@ -49,6 +50,27 @@ def logged_plan(prediction_every: int, rec, control_step, model):
             and model is not None and rec.k % prediction_every == 0):
         return control_step.predicted
     return None
+
+
+def check_settings(flush_every, prediction_every) -> None:
+    """A log's settings, for both writers: ``flush_every`` finite seconds > 0, ``prediction_every`` an int >= 0
+    (0: never); ConfigError otherwise (inf never flushed: a killed run lost its log; -1 or 2.5 logged no plan)."""
+    require_number(flush_every, "logging.flush_every")
+    if not 0 < flush_every < float("inf"):
+        raise ConfigError(f"logging.flush_every={flush_every}: use seconds > 0 (finite)")
+    require_number(prediction_every, "logging.prediction_every", integer=True)
+    if prediction_every < 0:
+        raise ConfigError(f"logging.prediction_every={prediction_every}: use an int >= 0 (0: never)")
+
+
+def check_message(t, payload) -> None:
+    """A message's log time (finite seconds >= 0: MCAP's times are unsigned nanoseconds) and payload (a dict: the
+    log's messages are JSON objects); ConfigError otherwise (was struct.error or OverflowError, or a list written
+    that read_log could not read back)."""
+    if not (isinstance(t, (int, float, np.integer, np.floating)) and 0 <= t < float("inf")):
+        raise ConfigError(f"log time t={t!r}: use a finite number of seconds >= 0")
+    if not isinstance(payload, dict):
+        raise ConfigError(f"payload {type(payload).__name__}: a log message is a dict (a JSON object)")
 
 
 class FlushClock:
@@ -149,6 +171,7 @@ class RunLogger(LogHelpers):
 
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
                  background: bool = False, compress_thread: bool = True):
+        check_settings(flush_every, prediction_every)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._f = open(self.path, "wb")
@@ -179,6 +202,7 @@ class RunLogger(LogHelpers):
     def write(self, topic: str, t: float, payload: dict) -> None:
         """Add one message (numpy values welcome: :func:`~kexp.recording.schema.encode` converts them)."""
         channel = self._ch[topic]          # an unknown topic raises KeyError here, in the caller's thread
+        check_message(t, payload)
         self._raise_thread_error()
         # encoded now (the payload may change after this call), or by the writer thread
         self._add(channel, topic, t, encode(payload) if self._queue is None else payload)

@@ -70,8 +70,15 @@ class SimConfig:
             require_number(getattr(self, key), f"sim.{key}")
         if not (self.dt > 0 and self.T >= self.dt and math.isfinite(self.T)):
             raise ConfigError(f"sim: need 0 < dt <= T < inf, got dt={self.dt}, T={self.T}")
-        if not self.tol > 0:
-            raise ConfigError(f"sim.tol={self.tol}: use a number > 0")
+        if not 0 < self.tol < math.inf:
+            raise ConfigError(f"sim.tol={self.tol}: use a finite number > 0")
+        steps = self.T / self.dt
+        if abs(steps - round(steps)) > 1e-9 * max(1.0, steps):   # was rounded silently: T=0.015 ran to 0.02
+            raise ConfigError(f"sim.T={self.T} is not a whole number of steps of dt={self.dt}; use e.g. "
+                              f"sim.T={max(1, round(steps)) * self.dt:g}")
+        for key, kind in (("integrator", IntegratorOptions), ("noise", NoiseConfig), ("disturbance", Disturbance)):
+            if not isinstance(getattr(self, key), kind):
+                raise ConfigError(f"sim.{key}={getattr(self, key)!r}: expected a {kind.__name__}")
         if not self.diverge_bound > 0:   # inf: never stop a run as diverged
             raise ConfigError(f"sim.diverge_bound={self.diverge_bound}: use a distance > 0 (inf: never stop)")
         if not (math.isfinite(self.r) and self.r >= 0):
@@ -176,6 +183,35 @@ def _metrics(t, x, u, records, x_eq, cfg: SimConfig) -> RunMetrics:
         solve_time_p99=float(np.percentile(times, 99)), solve_time_max=float(np.max(times)))
 
 
+def _numeric(value) -> bool:
+    try:
+        np.asarray(value, dtype=float)
+        return True
+    except (TypeError, ValueError):
+        return False
+
+
+def _check_parts(system, controller, model, lyap) -> None:
+    """The model, the controller's own model or CLF and ``lyap`` must fit the system and one another (a model of
+    another system, or none for a controller that works on z, failed later inside numpy, or ran silently)."""
+    if model is not None and (model.n, model.m) != (system.n, system.m):
+        raise ConfigError(f"the model has n={model.n} state(s) and m={model.m} input(s), the system "
+                          f"{system.name!r} n={system.n} and m={system.m}: identify the model on this system")
+    own = getattr(controller, "model", None)
+    clf = getattr(controller, "clf", None)
+    k_ctrl = own.k if own is not None else (clf.P.shape[0] if clf is not None else None)
+    if k_ctrl is not None and model is None:
+        raise ConfigError(f"the controller ({type(controller).__name__}) works on z = Ψ(x) (k={k_ctrl}): pass "
+                          "closed_loop(..., model=<its model>)")
+    if k_ctrl is not None and k_ctrl != model.k:
+        raise ConfigError(f"the controller ({type(controller).__name__}) works on k={k_ctrl} eigen-coordinates, the "
+                          f"model given to closed_loop has k={model.k}: pass the controller's own model")
+    if lyap is not None and (model is None or lyap.P.shape[0] != model.k):
+        raise ConfigError(f"lyap is a V = zᵀPz on k={lyap.P.shape[0]} coordinates, "
+                          + ("but no model gives z: pass model=" if model is None else f"the model has k={model.k}")
+                          + "; pass the CLF of this model (clf.lyap)")
+
+
 def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, model=None, lyap=None,
                 open_loop: bool = False, on_step=None, noise_scale=None) -> RunResult:
     """Simulate ``controller`` on ``system`` (the true plant) from ``x0`` (n,).  ``model`` lifts the measured x to
@@ -183,11 +219,20 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     records.  ``on_step(record, control_step)`` is called after each control decision, before the step is
     integrated (logging, progress).  ``noise_scale`` (n,): the per-state scale of a relative ``config.noise``
     (the data's RMS, :func:`kexp.data.noise.data_rms`); ConfigError if a relative noise has none."""
-    x0 = np.asarray(x0, dtype=float)
+    try:
+        x0 = np.asarray(x0, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"initial condition {x0!r}: need {system.n} finite numbers") from None
     if x0.shape != (system.n,) or not np.all(np.isfinite(x0)):
         raise ConfigError(f"initial condition {x0.tolist()}: need {system.n} finite numbers")
+    _check_parts(system, controller, model, lyap)
     if model is not None and abs(model.dt - config.dt) > 1e-12:
         raise ConfigError(f"sim.dt={config.dt} differs from the model's Δ={model.dt}; use the same sampling time")
+    if noise_scale is not None:
+        scale = np.asarray(noise_scale, dtype=float) if _numeric(noise_scale) else None
+        if scale is None or scale.shape != (system.n,) or not np.all(np.isfinite(scale) & (scale > 0)):
+            raise ConfigError(f"noise_scale={noise_scale!r}: give {system.n} finite numbers > 0 (the data's RMS per "
+                              "state, kexp.data.noise.data_rms)")
     x_eq = np.asarray(system.equilibrium, float)
     n_steps = config.n_steps
     t = np.arange(n_steps + 1) * config.dt
@@ -208,6 +253,9 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
         z = model.lift(x_meas) if model is not None else np.zeros(0)
         step = controller.step(x_meas, z)
         u = np.asarray(step.u, float)
+        if u.shape != (system.m,):   # a (1,) u would fill both inputs of a 2-input plant silently
+            raise ConfigError(f"the controller ({type(controller).__name__}) returned u of shape {u.shape}; the "
+                              f"system {system.name!r} has m={system.m} input(s): build the controller for it")
         if not np.isfinite(u).all():
             u = np.zeros(system.m)
         us[k] = u
