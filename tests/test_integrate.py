@@ -4,7 +4,7 @@ import scipy.linalg as sla
 
 from kexp.data import IntegratorOptions, integrate
 from kexp.errors import ConfigError
-from kexp.systems import Linear, SlowManifold
+from kexp.systems import Linear, SlowManifold, VanDerPol
 
 
 def test_accuracy_against_closed_form_slow_manifold():
@@ -46,3 +46,15 @@ def test_bad_initial_conditions_rejected():
         integrate(Linear(), np.array([[np.nan, 0.0]]), np.arange(3) * 0.1)
     with pytest.raises(ConfigError, match="components"):
         integrate(Linear(), np.zeros((1, 3)), np.arange(3) * 0.1)
+
+
+def test_a_right_hand_side_that_turns_nan_fails_at_once():
+    """solve_ivp looped for ever on a NaN first step (a system parameter NaN past its checks, a user's F returning
+    NaN at a starting state); the integrator now stops with IntegrationFailure at the first NaN derivative."""
+    from kexp.data.integrate import IntegrationFailure, integrate
+    s = VanDerPol()
+    object.__setattr__(s, "mu", float("nan"))        # past the constructor's check, as a user's own F could be
+    with pytest.raises(IntegrationFailure, match=r"right-hand side is NaN/inf at t=0"):
+        integrate(s, np.array([[0.5, 0.5]]), np.linspace(0.0, 1.0, 11))
+    with pytest.raises(IntegrationFailure, match=r"right-hand side is NaN/inf at t=0"):
+        integrate(s, np.array([[0.5, 0.5]]), np.linspace(0.0, 1.0, 11), np.zeros((1, 10, 1)))

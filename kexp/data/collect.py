@@ -7,6 +7,7 @@ import numpy as np
 
 from ..errors import ConfigError, DataError, require_number, require_seed
 from ..systems.base import ControlAffineSystem
+from .checks import items, require_type, short
 from .dataset import PAIR_RULES, DataReport, Dataset
 from .excitation import Excitation
 from .files import DataSource
@@ -23,8 +24,17 @@ class RegionFilter:
     mode: str = "mask"
 
     def __post_init__(self):
-        if self.mode not in ("mask", "drop"):
+        if not isinstance(self.mode, str) or self.mode not in ("mask", "drop"):
             raise ConfigError(f"data.filter.mode={self.mode!r}; valid: 'mask', 'drop'")
+        lo, hi = _filter_bounds(self.low, "low"), _filter_bounds(self.high, "high")
+        if lo is None or hi is None:
+            return
+        if len(lo) != len(hi) and 1 not in (len(lo), len(hi)):
+            raise ConfigError(f"data.filter low={self.low} and high={self.high}: give the same number of bounds "
+                              "(or one for every state)")
+        lo, hi = lo * (len(hi) if len(lo) == 1 else 1), hi * (len(lo) if len(hi) == 1 else 1)
+        if any(a is not None and b is not None and a >= b for a, b in zip(lo, hi)):
+            raise ConfigError(f"data.filter: need low < high, got low={self.low}, high={self.high}")
 
     @property
     def active(self) -> bool:
@@ -68,11 +78,27 @@ class RegionFilter:
         return " × ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi))
 
 
+def _filter_bounds(value, key: str) -> list | None:
+    """The entries of data.filter.low/high (None entries: no bound), or None for no bounds at all."""
+    if value is None:
+        return None
+    entries = items(value, allow_none=True)
+    if not entries:
+        raise ConfigError(f"data.filter.{key}={short(value)}: give a number, or one per state (null: no bound)")
+    if any(v is not None and np.isnan(v) for v in entries):
+        raise ConfigError(f"data.filter.{key}={short(value)}: a bound is NaN; give numbers (null: no bound)")
+    return entries
+
+
+STEP_TOLERANCE = 1e-9  # relative: data.T must be a whole number of data.dt within this
+
+
 @dataclass(frozen=True)
 class DataConfig:
-    """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``.  ``source`` says
-    whether the data is simulated (collect(), the default) or read from recorded runs (kexp.data.files; then
-    ``dt`` must equal the files' sample spacing, and ``T``, the sampler and ``excitation`` do not apply)."""
+    """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``, T a whole number
+    of dt steps (relative tolerance 1e-9).  ``source`` says whether the data is simulated (collect(), the default)
+    or read from recorded runs (kexp.data.files; then ``dt`` must equal the files' sample spacing, and ``T``, the
+    sampler and ``excitation`` do not apply)."""
 
     T: float = 10.0
     dt: float = 0.01
@@ -91,8 +117,21 @@ class DataConfig:
             raise ConfigError(f"data.dt={self.dt}: the sampling time must be > 0")
         if not (np.isfinite(self.T) and self.T >= self.dt):
             raise ConfigError(f"data.T={self.T}: the duration must be >= dt={self.dt}")
-        if self.pairs not in PAIR_RULES:
+        if not isinstance(self.pairs, str) or self.pairs not in PAIR_RULES:
             raise ConfigError(f"data.pairs={self.pairs!r}; valid: {PAIR_RULES}")
+        if self.excitation is not None:
+            require_type(self.excitation, Excitation, "data.excitation", " (or None: unforced)")
+        require_type(self.filter, RegionFilter, "data.filter", " (RegionFilter(): no filter)")
+        require_type(self.integrator, IntegratorOptions, "data.integrator", " (IntegratorOptions(): the defaults)")
+        require_type(self.source, DataSource, "data.source", " (DataSource(): simulate)")
+        steps = self.T / self.dt
+        if not np.isfinite(steps):
+            raise ConfigError(f"data.T={self.T}, data.dt={self.dt}: T/dt is not a finite number of steps; use a "
+                              "larger dt or a shorter T")
+        k = round(steps)
+        if self.source.kind == "simulate" and abs(k * self.dt - self.T) > STEP_TOLERANCE * self.T:
+            raise ConfigError(f"data.T={self.T}: not a whole number of data.dt={self.dt} steps (T/dt = {steps:.9g});"
+                              f" use data.T={k * self.dt:.12g} ({k} steps)")
         if self.excitation is not None:
             self.excitation.check(self.dt)
         if self.source.kind == "files" and self.excitation is not None:
@@ -106,7 +145,9 @@ class DataConfig:
 
 def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfig()) -> Dataset:
     """Simulate ``sampler.n_traj`` trajectories of ``system`` (unforced, or under ``config.excitation``) for
-    ``config.T`` seconds sampled every ``config.dt``; apply the region filter; return a :class:`Dataset`."""
+    ``config.T`` seconds sampled every ``config.dt``; apply the region filter; return a :class:`Dataset`.
+    Recorded runs (``config.source.kind='files'``) are read with :func:`~kexp.data.read_runs` / ``open_runs``."""
+    _check_collect(system, sampler, config)
     xe = np.asarray(system.equilibrium, dtype=float)
     x0 = sampler.sample(xe, config.seed)
     t = np.arange(config.n_steps + 1) * config.dt
@@ -136,3 +177,24 @@ def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfi
                         f"trajectories excited ({config.excitation.kind})")
     object.__setattr__(ds, "report", report)
     return ds
+
+
+def _check_collect(system, sampler, config) -> None:
+    """The arguments' types, the data source, and the states' size against the memory budget."""
+    require_type(system, ControlAffineSystem, "collect: system", " (e.g. kexp.systems.VanDerPol())")
+    if not callable(getattr(sampler, "sample", None)):
+        raise ConfigError(f"collect: sampler={short(sampler)}: expected an initial-condition sampler (Circle, Box, "
+                          "Points or make_sampler(...))")
+    require_type(config, DataConfig, "collect: config", " (e.g. DataConfig(T=10.0))")
+    if config.source.kind != "simulate":
+        raise ConfigError(f"collect simulates, but data.source.kind={config.source.kind!r} (path "
+                          f"{config.source.path!r}): read recorded runs with kexp.data.read_runs or open_runs")
+    n_traj = getattr(sampler, "n_traj", None)
+    if isinstance(n_traj, (int, np.integer)):
+        from ..control.memory import memory_budget
+        need, budget = 8.0 * n_traj * (config.n_steps + 1) * system.n, memory_budget()
+        if need > budget:
+            raise ConfigError(f"collect: {n_traj} trajectories of {config.n_steps + 1} samples (data.T={config.T:g}"
+                              f" s at dt={config.dt:g} s) are {need / 1e9:.3g} GB of states, over the budget of "
+                              f"{budget / 1e9:.3g} GB (KEXP_MEMORY_BUDGET_GB): use fewer trajectories or a shorter "
+                              "data.T")

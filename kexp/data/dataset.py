@@ -12,9 +12,11 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import ConfigError, DataError
+from .checks import is_real, short
 from .runs import Run, SampleStats, pair_chunks, split_indices
 
 PAIR_RULES = ("next", "euler")
+DT_TOLERANCE = 1e-6  # relative to dt: how far a sample spacing may be from dt (recorded runs and Dataset.t)
 
 
 def _frozen(a):
@@ -88,10 +90,27 @@ class Dataset:
             raise DataError(f"Dataset.x must have shape (n_traj, T+1, n), got {self.x.shape}")
         if self.valid.shape != self.x.shape[:2]:
             raise DataError(f"Dataset.valid shape {self.valid.shape} must equal x.shape[:2] = {self.x.shape[:2]}")
-        if self.pair_rule not in PAIR_RULES:
+        if self.valid.dtype != bool:
+            raise DataError(f"Dataset.valid has dtype {self.valid.dtype}; give a bool mask (True: sample kept)")
+        if not (is_real(self.dt) and np.isfinite(self.dt) and self.dt > 0):
+            raise ConfigError(f"Dataset.dt={short(self.dt)}: use the sampling time, a finite number > 0")
+        if self.t.shape != self.x.shape[1:2]:
+            raise DataError(f"Dataset.t shape {self.t.shape} must be (T+1,) = ({self.x.shape[1]},), one time per "
+                            "sample of x")
+        if self.t.dtype.kind not in "iuf":
+            raise DataError(f"Dataset.t has dtype {self.t.dtype}; give the sample times as numbers")
+        steps = np.diff(self.t)
+        bad = np.flatnonzero(~(np.abs(steps - self.dt) <= DT_TOLERANCE * self.dt))
+        if bad.size:
+            k = int(bad[0])
+            raise DataError(f"Dataset.t[{k + 1}] - t[{k}] = {steps[k]:.12g}, but dt={self.dt:g}: t must be spaced "
+                            f"dt apart (tolerance {DT_TOLERANCE:g}·dt) in {bad.size} step(s)")
+        if not isinstance(self.pair_rule, str) or self.pair_rule not in PAIR_RULES:
             raise ConfigError(f"data.pairs={self.pair_rule!r}; valid: {PAIR_RULES}")
         if self.pair_rule == "euler" and self.fx is None:
             raise DataError("Euler pairs need F(x) at the samples (fx)")
+        if self.fx is not None and self.fx.shape != self.x.shape:
+            raise DataError(f"Dataset.fx shape {self.fx.shape} must equal x.shape = {self.x.shape}")
         if self.u is not None and self.u.shape[:2] != (self.x.shape[0], self.x.shape[1] - 1):
             raise DataError(f"Dataset.u shape {self.u.shape} must be (n_traj, T, m)")
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError, require_number
+from .checks import items, short
 
 
 def _uniform(exc: "Excitation", n_traj, n_blocks, m, rng, t_blocks):
@@ -54,7 +55,7 @@ class Excitation:
     fraction: float = 1.0
 
     def __post_init__(self):
-        if self.kind not in EXCITATION_KINDS:
+        if not isinstance(self.kind, str) or self.kind not in EXCITATION_KINDS:
             raise ConfigError(f"data.excitation.kind={self.kind!r}; valid: {sorted(EXCITATION_KINDS)}")
         require_number(self.low, "data.excitation.low")
         require_number(self.high, "data.excitation.high")
@@ -69,12 +70,11 @@ class Excitation:
             raise ConfigError(f"data.excitation.amplitude={self.amplitude}: use a finite number > 0")
         if not 0 <= self.fraction <= 1:
             raise ConfigError(f"data.excitation.fraction={self.fraction}: use a share of trajectories in [0, 1]")
-        try:
-            freqs = tuple(float(v) for v in np.atleast_1d(np.asarray(
-                DEFAULT_FREQUENCIES if self.frequencies is None else self.frequencies, dtype=float)))
-        except (TypeError, ValueError):
-            raise ConfigError(f"data.excitation.frequencies={self.frequencies!r}: give a list of frequencies "
-                              "in Hz") from None
+        if self.frequencies is not None and items(self.frequencies) is None:
+            raise ConfigError(f"data.excitation.frequencies={short(self.frequencies)}: give a list of frequencies "
+                              "in Hz")
+        freqs = tuple(float(v) for v in np.atleast_1d(np.asarray(
+            DEFAULT_FREQUENCIES if self.frequencies is None else self.frequencies, dtype=float)))
         if not freqs or not all(np.isfinite(v) and v > 0 for v in freqs):
             raise ConfigError(f"data.excitation.frequencies={list(freqs)}: give a non-empty list of frequencies > 0 "
                               "in Hz")

@@ -31,12 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from .dataset import Dataset
+from .checks import require_path, require_type
+from .dataset import DT_TOLERANCE, Dataset
 
 FORMATS = ("auto", "npz", "csv", "mcap")
 SOURCE_KINDS = ("simulate", "files")
 _SUFFIX = {".npz": "npz", ".csv": "csv", ".mcap": "mcap"}
-DT_TOLERANCE = 1e-6  # relative to dt
 
 
 @dataclass(frozen=True)
@@ -50,10 +50,12 @@ class DataSource:
     format: str = "auto"
 
     def __post_init__(self):
-        if self.kind not in SOURCE_KINDS:
+        if not isinstance(self.kind, str) or self.kind not in SOURCE_KINDS:
             raise ConfigError(f"data.source.kind={self.kind!r}; valid: {SOURCE_KINDS}")
-        if self.format not in FORMATS:
+        if not isinstance(self.format, str) or self.format not in FORMATS:
             raise ConfigError(f"data.source.format={self.format!r}; valid: {FORMATS}")
+        if self.path is not None:
+            require_path(self.path, "data.source.path")
         if self.kind == "files" and not self.path:
             raise ConfigError("data.source.kind=files needs data.source.path (a file or folder of recorded runs)")
 
@@ -262,8 +264,12 @@ def write_runs(dataset: Dataset, folder: str | Path, format: str = "npz", *, pre
     :func:`~kexp.data.streaming.read_runs` reads: masked samples are written as NaN rows, trailing masked samples
     are left out.
     Returns the paths."""
-    if format not in ("npz", "csv"):
+    require_type(dataset, Dataset, "write_runs: dataset", " (from collect or read_runs)")
+    if not isinstance(format, str) or format not in ("npz", "csv"):
         raise ConfigError(f"format={format!r}; valid: 'npz', 'csv'")
+    require_path(folder, "write_runs: folder")
+    if not isinstance(prefix, str) or not prefix or "/" in prefix:
+        raise ConfigError(f"write_runs: prefix={prefix!r}: give a plain file-name prefix, e.g. 'run'")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     paths = []

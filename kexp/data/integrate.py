@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ..errors import ConfigError
+from ..errors import ConfigError, require_number
 from ..systems.base import ControlAffineSystem
 
 
@@ -25,27 +25,40 @@ class IntegratorOptions:
     batch: int = 16
 
     def __post_init__(self):
-        if self.method not in ("DOP853", "RK45", "Radau", "LSODA", "BDF", "RK23"):
-            raise ConfigError(f"integrator.method={self.method!r}; valid: DOP853, RK45, RK23, Radau, BDF, LSODA")
+        if not isinstance(self.method, str) or self.method not in ("DOP853", "RK45", "Radau", "LSODA", "BDF", "RK23"):
+            raise ConfigError(f"data.integrator.method={self.method!r}; valid: DOP853, RK45, RK23, Radau, BDF, LSODA")
+        require_number(self.rtol, "data.integrator.rtol")
+        require_number(self.atol, "data.integrator.atol")
         if not (0 < self.rtol < 1 and 0 < self.atol < 1):
-            raise ConfigError(f"integrator rtol={self.rtol}, atol={self.atol}: both must be in (0, 1)")
+            raise ConfigError(f"data.integrator rtol={self.rtol}, atol={self.atol}: both must be in (0, 1)")
+        require_number(self.batch, "data.integrator.batch", integer=True)
         if self.batch < 1:
-            raise ConfigError(f"integrator.batch={self.batch}: use an int >= 1")
+            raise ConfigError(f"data.integrator.batch={self.batch}: use an int >= 1")
 
 
 class IntegrationFailure(RuntimeError):
     """The solver could not integrate (blow-up, NaN)."""
 
 
+class _NonFinite(Exception):
+    """The right-hand side returned NaN/inf (at the time it carries): solve_ivp would loop for ever on a NaN step."""
+
+
 def _flow(system, x0, t_span, t_eval, u, opts):
     b, n = x0.shape
 
     def rhs(_t, y):
-        x = y.reshape(b, n)
-        return system.rhs(x, u).reshape(-1)
+        d = system.rhs(y.reshape(b, n), u).reshape(-1)
+        if not np.isfinite(d).all():
+            raise _NonFinite(_t)
+        return d
 
-    sol = solve_ivp(rhs, t_span, x0.reshape(-1), method=opts.method, t_eval=t_eval, rtol=opts.rtol,
-                    atol=opts.atol)
+    try:
+        sol = solve_ivp(rhs, t_span, x0.reshape(-1), method=opts.method, t_eval=t_eval, rtol=opts.rtol,
+                        atol=opts.atol)
+    except _NonFinite as exc:
+        raise IntegrationFailure(f"integration failed on [{t_span[0]:.4g}, {t_span[1]:.4g}]: the system's "
+                                 f"right-hand side is NaN/inf at t={exc.args[0]:.4g}") from None
     if not sol.success or sol.y.shape[1] != len(t_eval) or not np.all(np.isfinite(sol.y)):
         raise IntegrationFailure(f"integration failed on [{t_span[0]:.4g}, {t_span[1]:.4g}]: {sol.message}")
     return sol.y.T.reshape(len(t_eval), b, n).transpose(1, 0, 2)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, require_seed
+from .checks import short, state_vector
 from .runs import PairSource
 
 
@@ -78,6 +79,8 @@ class NoiseConfig:
 def data_rms(dataset: PairSource, x_eq=None) -> np.ndarray:
     """RMS per state of the kept, finite samples about ``x_eq`` (default 0), (n,); any
     :class:`~kexp.data.runs.PairSource` (a file-backed one streams its runs)."""
+    _check_source(dataset, "data_rms")
+    state_vector(x_eq, dataset.n, "data_rms: x_eq")
     return dataset.stats(x_eq).rms
 
 
@@ -88,8 +91,16 @@ def add_measurement_noise(dataset: PairSource, std, relative: bool = True, seed:
     times are unchanged); with Euler pairs the derivative ``fx`` stays the clean F(x) (y = x̃ + F(x)Δ).  The same
     seed gives the same noise, drawn over (n_traj, T+1, n) in C order for a Dataset and for recorded runs alike;
     ``std`` = 0 returns ``dataset`` unchanged.  ``std`` may also be a :class:`NoiseConfig`."""
+    _check_source(dataset, "add_measurement_noise")
+    state_vector(x_eq, dataset.n, "add_measurement_noise: x_eq")
     cfg = std if isinstance(std, NoiseConfig) else NoiseConfig(std=std, relative=relative, seed=seed)
     if not cfg.active:
         return dataset
     rms = data_rms(dataset, x_eq) if cfg.relative else None
     return dataset.with_noise(cfg.sigma(dataset.n, rms), cfg.seed)
+
+
+def _check_source(dataset, who: str) -> None:
+    if not (callable(getattr(dataset, "stats", None)) and callable(getattr(dataset, "with_noise", None))):
+        raise ConfigError(f"{who}: dataset={short(dataset)}: expected a Dataset or RecordedRuns (collect, read_runs, "
+                          "open_runs)")

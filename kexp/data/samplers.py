@@ -2,17 +2,19 @@
 that makes sense, from ``numpy.random.default_rng(seed)`` (never global seeding)."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, require_number
+from .checks import is_real, items, real_vector, short
 
 
 @dataclass(frozen=True)
 class Circle:
     """Points on the circle (sphere for n > 2) of radius ``radius`` around ``center`` (default: equilibrium):
-    angles uniform at random, or evenly spaced with ``even=True`` (n = 2 only)."""
+    angles uniform at random, or evenly spaced with ``even=True`` (n = 2 only: with n != 2, sample() refuses it)."""
 
     n_traj: int
     radius: float
@@ -20,11 +22,17 @@ class Circle:
 
     def __post_init__(self):
         _check_count(self.n_traj)
+        require_number(self.radius, "data.sampler.radius")
         if not (np.isfinite(self.radius) and self.radius > 0):
             raise ConfigError(f"data.sampler.radius={self.radius}: use a finite number > 0")
+        if not isinstance(self.even, (bool, np.bool_)):
+            raise ConfigError(f"data.sampler.even={short(self.even)}: expected true or false")
 
     def sample(self, center: np.ndarray, seed: int) -> np.ndarray:
         n = center.size
+        if self.even and n != 2:
+            raise ConfigError(f"data.sampler.even=true spaces the angles evenly on a circle (n = 2 only), but the "
+                              f"system has n={n}: set even=false (random directions on the sphere)")
         rng = np.random.default_rng(seed)
         if n == 2:
             a = (np.arange(self.n_traj) / self.n_traj * 2 * np.pi if self.even
@@ -52,7 +60,8 @@ class Box:
 
     def __post_init__(self):
         _check_count(self.n_traj)
-        lo, hi = np.atleast_1d(self.low).astype(float), np.atleast_1d(self.high).astype(float)
+        hint = "give a finite number or a list of them (one per state)"
+        lo, hi = real_vector(self.low, "data.sampler.low", hint), real_vector(self.high, "data.sampler.high", hint)
         if lo.shape != hi.shape and lo.size != 1 and hi.size != 1:
             raise ConfigError(f"data.sampler low={self.low} and high={self.high} must have the same length")
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
@@ -60,18 +69,26 @@ class Box:
 
     def sample(self, center: np.ndarray, seed: int) -> np.ndarray:
         n = center.size
+        self._check_dim(n)
         lo = np.broadcast_to(np.atleast_1d(self.low).astype(float), (n,))
         hi = np.broadcast_to(np.atleast_1d(self.high).astype(float), (n,))
         return np.random.default_rng(seed).uniform(lo, hi, (self.n_traj, n))
 
     def contains(self, x: np.ndarray, center: np.ndarray) -> bool:
         x = np.asarray(x)
+        self._check_dim(x.shape[-1] if x.ndim else 1)
         lo = np.broadcast_to(np.asarray(self.low, dtype=float), x.shape)
         hi = np.broadcast_to(np.asarray(self.high, dtype=float), x.shape)
         return bool(np.all((x >= lo) & (x <= hi)))
 
     def describe(self) -> str:
         return f"the box [{self.low}, {self.high}]"
+
+    def _check_dim(self, n: int) -> None:
+        sizes = {np.size(self.low), np.size(self.high)} - {1}
+        if sizes and sizes != {n}:
+            raise ConfigError(f"data.sampler low={self.low}, high={self.high} have {max(sizes)} entries, but the "
+                              f"system has n={n}: give one number or {n}")
 
 
 @dataclass(frozen=True)
@@ -81,8 +98,17 @@ class Points:
     points: tuple[tuple[float, ...], ...]
 
     def __post_init__(self):
+        pts = self.points
+        if isinstance(pts, np.ndarray):
+            ok = pts.ndim == 2 and pts.dtype.kind in "iuf"
+        else:
+            ok = (isinstance(pts, Sequence) and not isinstance(pts, (str, bytes))
+                  and all(not is_real(r) and items(r) is not None for r in pts) and len({len(r) for r in pts}) <= 1)
+        if not ok:
+            raise ConfigError(f"data.sampler.points={short(self.points)}: give a list of states, each a list of n "
+                              "numbers (all of the same length)")
         p = np.asarray(self.points, dtype=float)
-        if p.ndim != 2 or p.shape[0] < 1:
+        if p.ndim != 2 or p.shape[0] < 1 or p.shape[1] < 1:
             raise ConfigError(f"data.sampler.points must be a non-empty list of states, got shape {p.shape}")
         if not np.all(np.isfinite(p)):
             raise ConfigError("data.sampler.points contain NaN/inf; give finite initial conditions")
@@ -106,7 +132,7 @@ class Points:
 
 
 def _check_count(n_traj):
-    if not (isinstance(n_traj, (int, np.integer)) and n_traj >= 1):
+    if not (isinstance(n_traj, (int, np.integer)) and not isinstance(n_traj, bool) and n_traj >= 1):
         raise ConfigError(f"data.sampler.n_traj={n_traj!r}: use an int >= 1")
 
 

@@ -18,8 +18,10 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
-from .dataset import DataReport, Dataset
+from ..errors import ConfigError, DataError, require_number
+from .checks import require_path, short, state_vector
+from .collect import RegionFilter
+from .dataset import PAIR_RULES, DataReport, Dataset
 from .files import FORMATS, DataBounds, _check_time, _read_mcap, _read_run, _run_shape, list_runs
 from .runs import Run, SampleStats, count_pairs, pair_chunks, sample_stats, split_indices
 from .smoothing import segments, smooth_run
@@ -172,10 +174,7 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
               system_name: str | None = None, drift=None, region_filter=None, x_eq=None) -> RecordedRuns:
     """The recorded runs at ``path`` as a streamed :class:`RecordedRuns`, after one pass that reads and checks
     every file (the arguments and checks as :func:`read_runs`)."""
-    if format not in FORMATS:
-        raise ConfigError(f"data.source.format={format!r}; valid: {FORMATS}")
-    if pair_rule == "euler" and drift is None:
-        raise ConfigError("data.pairs=euler needs the system's drift F for recorded data")
+    _check_args("open_runs", path, n, m, dt, format, pair_rule, system_name, drift, region_filter, x_eq)
     files, formats = list_runs(path, format)
     x_eq = np.zeros(n) if x_eq is None else np.asarray(x_eq, float).reshape(n)
     digest = hashlib.sha256()
@@ -237,9 +236,37 @@ def read_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
     :class:`~kexp.data.RegionFilter` around ``x_eq``) masks or drops samples as for simulated data.  The report
     counts NaN rows and padding and holds a SHA-256 digest of the files' bytes (``report.digest``), e.g. for
     cache keys.  With ``system_name``, an MCAP log recorded with another system is refused.  The same runs
-    streamed, without holding them all: :func:`open_runs`."""
+    streamed, without holding them all: :func:`open_runs`.  Bad arguments raise a one-line ConfigError."""
+    _check_args("read_runs", path, n, m, dt, format, pair_rule, system_name, drift, region_filter, x_eq)
     return open_runs(path, n=n, m=m, dt=dt, format=format, pair_rule=pair_rule, system_name=system_name,
                      drift=drift, region_filter=region_filter, x_eq=x_eq).to_dataset()
+
+
+def _check_args(who, path, n, m, dt, format, pair_rule, system_name, drift, region_filter, x_eq) -> None:
+    """A one-line ConfigError, naming the function and the argument, for any bad argument of open_runs/read_runs."""
+    require_path(path, f"{who}: path")
+    for key, value in (("n", n), ("m", m)):
+        require_number(value, f"{who}: {key}", integer=True)
+        if value < 1:
+            raise ConfigError(f"{who}: {key}={value}: use an int >= 1 (the system's number of "
+                              f"{'states' if key == 'n' else 'inputs'})")
+    require_number(dt, f"{who}: dt")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ConfigError(f"{who}: dt={dt}: use the runs' sampling time (data.dt), a finite number > 0")
+    if not isinstance(format, str) or format not in FORMATS:
+        raise ConfigError(f"data.source.format={format!r}; valid: {FORMATS}")
+    if not isinstance(pair_rule, str) or pair_rule not in PAIR_RULES:
+        raise ConfigError(f"data.pairs={pair_rule!r}; valid: {PAIR_RULES}")
+    if system_name is not None and not isinstance(system_name, str):
+        raise ConfigError(f"{who}: system_name={short(system_name)}: give the system's name (a str) or None")
+    if drift is not None and not callable(drift):
+        raise ConfigError(f"{who}: drift={short(drift)}: give the system's drift F (a callable, e.g. system.drift) or "
+                          "None")
+    if pair_rule == "euler" and drift is None:
+        raise ConfigError("data.pairs=euler needs the system's drift F for recorded data")
+    if region_filter is not None and not isinstance(region_filter, RegionFilter):
+        raise ConfigError(f"{who}: region_filter={short(region_filter)}: expected a RegionFilter or None")
+    state_vector(x_eq, n, f"{who}: x_eq")
 
 
 def bounds(dataset) -> DataBounds:
