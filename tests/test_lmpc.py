@@ -301,7 +301,9 @@ def test_infeasible_21e_uses_and_reports_the_slack(vdp):
     assert a[j] + 4.99 * beta[j, 0] > 0
     V0 = float(clf.lyap.value(zs[j]))
     tight = dataclasses.replace(clf, certificate=dataclasses.replace(clf.certificate, r=10 * V0, r_hat=V0))
-    st = Lmpc(model, tight, h, LmpcConfig(), 4.99, 5.0).step(grid[j], zs[j])
+    with pytest.warns(UserWarning, match="differ from the controller's"):   # on purpose: force a (21e) slack
+        ctrl = Lmpc(model, tight, h, LmpcConfig(), 4.99, 5.0)
+    st = ctrl.step(grid[j], zs[j])
     assert st.region == "inner" and st.active == "21e"
     assert st.slack > 0 and st.binds and not st.fallback and st.status == "solved"
     # with a generous r̂ the same step has zero slack

@@ -28,14 +28,25 @@ class QuadraticLyapunov:
 
     @classmethod
     def from_model(cls, model, P: np.ndarray) -> "QuadraticLyapunov":
+        k = model.k
+        try:
+            raw = np.asarray(P) if not isinstance(P, (str, bytes)) else None
+        except ValueError:   # a ragged list
+            raw = None
+        if raw is None or raw.dtype.kind not in "iuf":
+            raise ConfigError(f"P={P!r:.60}: give a ({k}, {k}) matrix of numbers (symmetric positive definite)")
         P = np.asarray(P, dtype=float)
-        if P.shape != (model.k, model.k):
-            raise ConfigError(f"P has shape {P.shape}; the model needs ({model.k}, {model.k})")
-        if not np.all(np.isfinite(P)) or not np.allclose(P, P.T, atol=1e-10 * max(1.0, np.abs(P).max())):
-            raise ConfigError("P must be finite and symmetric")
+        if P.shape != (k, k):
+            raise ConfigError(f"P has shape {P.shape}; the model needs ({k}, {k})")
+        if not np.all(np.isfinite(P)):
+            raise ConfigError(f"P ({k}, {k}) has {np.sum(~np.isfinite(P))} non-finite entries: P must be finite")
+        if not np.allclose(P, P.T, atol=1e-10 * max(1.0, np.abs(P).max())):
+            raise ConfigError(f"P is not symmetric (max |P − Pᵀ| = {np.abs(P - P.T).max():.3g}): give a symmetric P "
+                              "(e.g. (P + P.T) / 2)")
         P = 0.5 * (P + P.T)
-        if np.linalg.eigvalsh(P)[0] <= 0:
-            raise ConfigError("P must be positive definite")
+        lam_min = np.linalg.eigvalsh(P)[0]
+        if lam_min <= 0:
+            raise ConfigError(f"P must be positive definite (its smallest eigenvalue is {lam_min:.3g})")
         q_lam = P @ model.Lambda + model.Lambda.T @ P
         q_b = np.stack([P @ B + B.T @ P for B in model.B])
         lin = np.stack([2 * P @ b for b in model.b])

@@ -14,7 +14,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..errors import ClfError, ConfigError, require_number
-from .certificate import CertificateReport, check_certificate
+from .certificate import CertificateReport, check_certificate, check_region, check_region_config
 from .lyapunov import QuadraticLyapunov
 from .riccati import model_lqr
 
@@ -54,6 +54,15 @@ class ClfConfig:
             raise ConfigError(f"clf.method={self.method!r}; valid: {METHODS}")
         if not (self.q_x > 0 and self.r_u > 0 and self.eps > 0):
             raise ConfigError(f"clf.q_x={self.q_x}, clf.r_u={self.r_u}, clf.eps={self.eps}: all must be > 0")
+        for key in ("q_x", "r_u"):
+            if not np.isfinite(getattr(self, key)):
+                raise ConfigError(f"clf.{key}={getattr(self, key)}: use a finite weight > 0 (default 1.0)")
+        if not self.eps <= 1:
+            raise ConfigError(f"clf.eps={self.eps}: use a small fraction in (0, 1] (default 1e-4): V adds "
+                              "eps·λ_max(P_x)·|z|² on the directions C does not see")
+        if not isinstance(self.accept_inaccurate, (bool, np.bool_)):
+            raise ConfigError(f"clf.accept_inaccurate={self.accept_inaccurate!r}: use true or false")
+        check_region_config(self.region_low, self.region_high)
         if not (np.isfinite(self.gamma) and self.gamma >= 0):
             raise ConfigError(f"clf.gamma={self.gamma}: use a finite number >= 0")
         if not (0 < self.c_lower < self.c_upper < np.inf):
@@ -115,10 +124,14 @@ def solve_sdp(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float]:
         prob.solve(solver=config.solver, **SOLVER_OPTIONS[config.solver])
     except cp.error.SolverError as exc:
         other = "SCS" if config.solver == "CLARABEL" else "CLARABEL"
-        raise ClfError(f"CLF SDP: solver {config.solver} failed ({exc}); try clf.solver={other}") from None
+        raise ClfError(f"CLF SDP: solver {config.solver} failed ({exc}); try clf.solver={other}, or a smaller "
+                       f"clf.gamma={config.gamma:g} / clf.c_upper={config.c_upper:g} (they scale the problem)") from None
     status = prob.status
     if status not in ("optimal", "optimal_inaccurate") or P.value is None:
-        raise ClfError(f"CLF SDP status {status}: check clf.c_lower < clf.c_upper and the model (finite Λ, B)")
+        raise ClfError(f"CLF SDP status {status} with clf.c_lower={config.c_lower:g}, clf.c_upper={config.c_upper:g} "
+                       f"(ratio {config.c_upper / config.c_lower:.3g}), clf.gamma={config.gamma:g}: bounds this large "
+                       "or this far apart defeat the solver (the defaults 0.01, 1 and 2 solve; keep c_upper/c_lower "
+                       "<= 1e8); else check the model (finite Λ, B)")
     if status == "optimal_inaccurate" and not config.accept_inaccurate:
         raise ClfError("CLF SDP solved inaccurately; set clf.solver=CLARABEL, rescale the model, or accept with "
                        "clf.accept_inaccurate=true")
@@ -132,6 +145,10 @@ def check_bounds(P: np.ndarray, config: ClfConfig) -> None:
     more than 1e-6·c_upper (what an SDP solver reporting 'optimal' must meet), naming what to change."""
     eig = np.linalg.eigvalsh(P)
     tol = 1e-6 * config.c_upper
+    if eig[0] <= 0:
+        raise ClfError(f"CLF SDP returned P with smallest eigenvalue {eig[0]:.3g} <= 0: clf.c_lower={config.c_lower:g} "
+                       f"is below the solver's accuracy ({tol:.1g} = 1e-6·clf.c_upper); raise clf.c_lower (keep "
+                       "c_upper/c_lower <= 1e8)")
     if eig[0] < config.c_lower - tol or eig[-1] > config.c_upper + tol:
         raise ClfError(f"CLF SDP returned P with eigenvalues in [{eig[0]:.6g}, {eig[-1]:.6g}], outside "
                        f"[c_lower, c_upper] = [{config.c_lower}, {config.c_upper}] by more than {tol:.1g}: the "
@@ -150,6 +167,9 @@ def solve_lqr_x(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float
         raise ClfError(f"clf.method=lqr_x: {exc}") from None
     Pz = model.C.T @ Px @ model.C
     Pz = 0.5 * (Pz + Pz.T) + config.eps * np.linalg.eigvalsh(Px)[-1] * np.eye(model.k)
+    if not np.all(np.isfinite(Pz)):
+        raise ClfError(f"clf.method=lqr_x: P is not finite with clf.q_x={config.q_x:g}, clf.r_u={config.r_u:g}, "
+                       f"clf.eps={config.eps:g}: use moderate weights (default 1, 1, 1e-4)")
     return Pz, "riccati", float(np.trace(Px)), float("nan")
 
 
@@ -157,7 +177,10 @@ def solve_lqr_x(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float
 def synthesize_clf(model, config: ClfConfig = ClfConfig(), *, law: str = "sontag", u_min=-5.0, u_max=5.0,
                    law_params: dict | None = None) -> Clf:
     """Solve the SDP (or the Riccati equation, ``method='lqr_x'``), then check the certificate of V = zᵀPz for
-    the explicit law ``law`` with bounds."""
+    the explicit law ``law`` with bounds.  Raises :class:`~kexp.errors.ConfigError` first (before solving) for a
+    ``config`` that is not a ClfConfig, a region that does not fit the model's n or a grid over the memory budget
+    (:func:`~kexp.clf.certificate.check_region`), and :class:`~kexp.errors.ClfError` when the solve fails."""
+    _check_inputs(model, config)
     P, status, obj, sigma = (solve_sdp if config.method == "sdp" else solve_lqr_x)(model, config)
     return clf_from_P(model, P, config, law=law, u_min=u_min, u_max=u_max, law_params=law_params,
                       status=status, objective=obj, sigma=sigma)
@@ -165,8 +188,11 @@ def synthesize_clf(model, config: ClfConfig = ClfConfig(), *, law: str = "sontag
 
 def clf_from_P(model, P, config: ClfConfig = ClfConfig(), *, law="sontag", u_min=-5.0, u_max=5.0,
                law_params=None, status="given", objective=float("nan"), sigma=float("nan")) -> Clf:
-    """Wrap a given P (e.g. from another synthesis) with its certificate report."""
+    """Wrap a given P (e.g. from another synthesis) with its certificate report.  Raises
+    :class:`~kexp.errors.ConfigError` for a P that is not a finite symmetric positive definite (k, k) matrix (and
+    as :func:`synthesize_clf` for the model, config, law and bounds)."""
     from ..control.laws import make_law
+    _check_inputs(model, config)
     lyap = QuadraticLyapunov.from_model(model, P)
     h = make_law(law, lyap, u_min, u_max, model=model, weights=(config.q_x, config.r_u), **(law_params or {}))
     report = check_certificate(model, lyap, h, config)
@@ -174,9 +200,23 @@ def clf_from_P(model, P, config: ClfConfig = ClfConfig(), *, law="sontag", u_min
                certificate=report, config=config)
 
 
+def _check_inputs(model, config) -> None:
+    """The model and config of a synthesis: an identified model (k, n, m, Λ, B, b, C), a ClfConfig whose region
+    fits the model (:func:`~kexp.clf.certificate.check_region`)."""
+    if not isinstance(config, ClfConfig):
+        raise ConfigError(f"config={config!r}: pass a ClfConfig")
+    if not all(hasattr(model, a) for a in ("k", "n", "m", "Lambda", "B", "b", "C", "lift")):
+        raise ConfigError(f"model={type(model).__name__}: pass the identified model (kexp.identify.identify or "
+                          "KoopmanBilinearModel.load)")
+    check_region(model, config)
+
+
 def save_clf(clf: Clf, path) -> None:
-    """P, the SDP facts and the certificate report as one .npz (no pickle); the model is not stored."""
+    """P, the SDP facts and the certificate report as one .npz (no pickle) at ``path``, its parent folders created;
+    the model is not stored."""
     import json
+    from pathlib import Path
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     np.savez(path, P=clf.P, meta=np.array(json.dumps({
         "status": clf.status, "solver": clf.solver, "objective": clf.objective, "sigma": clf.sigma,
         "certificate": clf.certificate.to_dict()}, default=float)))
@@ -184,16 +224,28 @@ def save_clf(clf: Clf, path) -> None:
 
 def load_clf(path, model, config: ClfConfig) -> Clf:
     """Read a CLF written by :func:`save_clf` (an .npz without pickle) for ``model`` (the model it was synthesised
-    for: its Λ, B, b give the Lie derivatives; P must be (k, k)) and attach ``config``.  Returns a :class:`Clf`
-    with the stored status, solver facts and certificate report (not re-checked).  Raises OSError / KeyError for a
-    missing or foreign file and :class:`~kexp.errors.ConfigError` if P does not fit the model."""
+    for: its Λ, B, b give the Lie derivatives; P must be (k, k)) and attach ``config`` (the ClfConfig it was
+    synthesised with).  Returns a :class:`Clf` with the stored status, solver facts and certificate report (not
+    re-checked).  Raises :class:`~kexp.errors.ConfigError` naming the file for a missing file or one that save_clf
+    did not write, a ``config`` that is not a ClfConfig, or a P that does not fit the model."""
     import json
-    with np.load(path, allow_pickle=False) as f:
-        P = f["P"]
-        meta = json.loads(str(f["meta"]))
-    cert = dict(meta["certificate"])
-    cert.pop("verdict", None)
-    cert["global_mu"] = tuple(cert["global_mu"])
-    return Clf(P=P, lyap=QuadraticLyapunov.from_model(model, P), status=meta["status"], solver=meta["solver"],
-               objective=meta["objective"], sigma=meta["sigma"], certificate=CertificateReport(**cert),
-               config=config)
+    import zipfile
+    if not isinstance(config, ClfConfig):
+        raise ConfigError(f"load_clf: config={config!r}: pass the ClfConfig the CLF was synthesised with")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            P = f["P"]
+            meta = json.loads(str(f["meta"]))
+        cert = dict(meta["certificate"])
+        cert.pop("verdict", None)
+        cert["global_mu"] = tuple(cert["global_mu"])
+        report = CertificateReport(**cert)
+        facts = {key: meta[key] for key in ("status", "solver", "objective", "sigma")}
+    except FileNotFoundError:
+        raise ConfigError(f"load_clf: {str(path)!r} does not exist: give the .npz save_clf wrote, or synthesise the "
+                          "CLF (synthesize_clf)") from None
+    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as exc:
+        raise ConfigError(f"load_clf: {str(path)!r} is not a CLF file written by save_clf ({type(exc).__name__}: "
+                          f"{str(exc).splitlines()[0] if str(exc) else ''}); give the .npz save_clf wrote, or "
+                          "synthesise the CLF again") from None
+    return Clf(P=P, lyap=QuadraticLyapunov.from_model(model, P), certificate=report, config=config, **facts)

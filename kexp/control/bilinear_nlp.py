@@ -43,6 +43,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .blocking import block_of_step, block_sizes
+from .checks import check_model_parts, input_bounds
 from .kernels import rollout
 from .lmpc import ControlStep, LmpcConfig, lyapunov_context
 
@@ -59,12 +60,7 @@ def _casadi():
     return casadi
 
 
-def _bounds(u_min, u_max, m):
-    lo = np.broadcast_to(np.asarray(u_min, float), (m,)).copy()
-    hi = np.broadcast_to(np.asarray(u_max, float), (m,)).copy()
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
-        raise ConfigError(f"controller bounds: need finite u_min < u_max, got {u_min}, {u_max}")
-    return lo, hi
+_bounds = input_bounds   # the controllers' one check of u_min, u_max (kexp.control.checks)
 
 
 def _ipopt_options(tol: float, max_iter: int, extra: dict | None) -> dict:
@@ -279,10 +275,12 @@ class IpoptLmpc:
                  substeps: int | None = None, ipopt_tol: float = 1e-10, ipopt_max_iter: int = 1000,
                  ipopt_options: dict | None = None, record_prediction: bool = False):
         ca = _casadi()
+        if not isinstance(config, LmpcConfig):
+            raise ConfigError(f"IpoptLmpc: config={config!r}: pass an LmpcConfig")
+        self.u_min, self.u_max = check_model_parts(model, clf, law, u_min, u_max, "IpoptLmpc")
         self.model, self.clf, self.law, self.cfg = model, clf, law, config
         self.record_prediction = record_prediction
         self.m, self.k = model.m, model.k
-        self.u_min, self.u_max = _bounds(u_min, u_max, self.m)
         self.sizes = block_sizes(config.horizon, config.free_moves, config.blocks)
         self.bos = block_of_step(self.sizes)
         self.nb = len(self.sizes)

@@ -6,16 +6,20 @@ import time
 import numpy as np
 import scipy.linalg as sla
 
-from ..errors import ConfigError
+from ..errors import ConfigError, require_number
+from .checks import check_clf, check_clf_and_law, input_bounds
 from .lmpc import ControlStep, region_of
 
 
 class ExplicitController:
-    """u = h(z) (Sontag or −k·L_BV), saturated."""
+    """u = h(z) (Sontag or −k·L_BV), saturated.  It works on z = Ψ(x) − Ψ(x_eq): run it with
+    ``closed_loop(..., model=<the CLF's model>)``.  Raises :class:`~kexp.errors.ConfigError` for a ``clf`` that is
+    not a CLF or a ``law`` that is not callable or is built on another V than ``clf.lyap``."""
 
     def __init__(self, law, clf):
+        check_clf_and_law(clf, law, "ExplicitController")
         self.law, self.clf = law, clf
-        self.name = law.name
+        self.name = getattr(law, "name", "explicit")
 
     def reset(self) -> None:
         pass
@@ -47,14 +51,20 @@ class LqrController:
     name = "lqr"
 
     def __init__(self, system, u_min, u_max, q: float = 1.0, r: float = 1.0, clf=None):
+        """Raises :class:`~kexp.errors.ConfigError` unless u_min < u_max (finite, a number or m numbers each) and
+        q, r are finite and > 0."""
+        lo, hi = input_bounds(u_min, u_max, system.m)
+        require_number(q, "controller.q")
+        require_number(r, "controller.r")
+        if not (q > 0 and r > 0 and np.isfinite(q) and np.isfinite(r)):
+            raise ConfigError(f"lqr weights q={q}, r={r}: both must be finite and > 0 (controller.q, controller.r)")
+        if clf is not None:
+            check_clf(clf, "LqrController")
         A, B = linearise(system)
-        if not (q > 0 and r > 0):
-            raise ConfigError(f"lqr weights q={q}, r={r}: both must be > 0")
         X = sla.solve_continuous_are(A, B, q * np.eye(system.n), r * np.eye(system.m))
         self.K = np.linalg.solve(r * np.eye(system.m), B.T @ X)
         self.x_eq = np.asarray(system.equilibrium, float)
-        self.u_min = np.broadcast_to(np.asarray(u_min, float), (system.m,))
-        self.u_max = np.broadcast_to(np.asarray(u_max, float), (system.m,))
+        self.u_min, self.u_max = lo, hi
         self.clf = clf
 
     def reset(self) -> None:

@@ -16,14 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..clf.lyapunov import QuadraticLyapunov
-from ..errors import ConfigError
+from ..errors import ConfigError, require_number
+from .checks import input_bounds
 
 
 def _bounds(u_min, u_max, m):
-    lo = np.broadcast_to(np.asarray(u_min, dtype=float), (m,)).copy()
-    hi = np.broadcast_to(np.asarray(u_max, dtype=float), (m,)).copy()
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
-        raise ConfigError(f"input bounds: need finite u_min < u_max, got u_min={u_min}, u_max={u_max}")
+    lo, hi = input_bounds(u_min, u_max, m)
     lo.setflags(write=False)
     hi.setflags(write=False)
     return lo, hi
@@ -34,7 +32,7 @@ class Sontag:
     """Sontag's formula (paper eq. 19) on V = zᵀPz (``lyap``), saturated to [``u_min``, ``u_max``] (scalars or
     (m,), broadcast and stored as read-only (m,) arrays).  ``law(z)``: z (..., k) -> u (..., m), finite and within
     the bounds; ``unsaturated(z)`` the formula before the clip (0 where |L_BV|² ≤ ``eps``·max(1, |L_ΛV|)).
-    Raises :class:`~kexp.errors.ConfigError` unless u_min < u_max, both finite."""
+    Raises :class:`~kexp.errors.ConfigError` unless u_min < u_max, both finite, and ``eps`` is finite and >= 0."""
 
     lyap: QuadraticLyapunov
     u_min: np.ndarray
@@ -44,6 +42,9 @@ class Sontag:
     name = "sontag"
 
     def __post_init__(self):
+        require_number(self.eps, "controller.law_params.eps")
+        if not (self.eps >= 0 and np.isfinite(self.eps)):
+            raise ConfigError(f"controller.law_params.eps={self.eps}: use a finite threshold >= 0 (default 1e-14)")
         lo, hi = _bounds(self.u_min, self.u_max, self.lyap.m)
         object.__setattr__(self, "u_min", lo)
         object.__setattr__(self, "u_max", hi)
@@ -84,8 +85,9 @@ class LieGain:
     name = "lie_gain"
 
     def __post_init__(self):
+        require_number(self.k, "controller.law_params.k")
         if not (np.isfinite(self.k) and self.k > 0):
-            raise ConfigError(f"controller.k={self.k}: use a finite gain > 0")
+            raise ConfigError(f"controller.law_params.k={self.k}: use a finite gain > 0")
         lo, hi = _bounds(self.u_min, self.u_max, self.lyap.m)
         object.__setattr__(self, "u_min", lo)
         object.__setattr__(self, "u_max", hi)
@@ -145,16 +147,25 @@ def make_law(name: str, lyap: QuadraticLyapunov, u_min, u_max, *, model=None, we
     bounds ``u_min``, ``u_max`` (scalars or (m,)) and the law's own keyword ``params`` (``eps`` for sontag, ``k``
     for lie_gain).  'model_lqr' needs the identified ``model`` and the Riccati ``weights`` (q_x, r_u) — pass the
     CLF config's, so that the gain comes from the same Riccati solution as the lqr_x CLF.  Returns a callable
-    z (..., k) -> u (..., m).  Raises :class:`~kexp.errors.ConfigError` for an unknown name or bad parameters and
+    z (..., k) -> u (..., m).  Raises :class:`~kexp.errors.ConfigError` for an unknown name, a ``lyap`` that is not a
+    QuadraticLyapunov, bounds that are not finite u_min < u_max (a number or m numbers each), bad parameters or
+    ``weights`` that are not two numbers, and
     :class:`~kexp.errors.ClfError` when the model's linearisation is not stabilisable."""
-    if name not in LAWS:
+    if not (isinstance(name, str) and name in LAWS):
         raise ConfigError(f"explicit law {name!r} is unknown; valid: {sorted(LAWS)}")
+    if not isinstance(lyap, QuadraticLyapunov):
+        raise ConfigError(f"law {name!r}: lyap={type(lyap).__name__}: pass the CLF's V (clf.lyap, a "
+                          "QuadraticLyapunov)")
     if name == "model_lqr":
         if params:
             raise ConfigError(f"law 'model_lqr' takes no law_params (got {params}); its weights are clf.q_x, "
                               "clf.r_u")
         if model is None:
             raise ConfigError("law 'model_lqr' needs the identified model")
+        if not (isinstance(weights, (tuple, list, np.ndarray)) and len(weights) == 2):
+            raise ConfigError(f"law 'model_lqr': weights={weights!r}: give (q_x, r_u), two finite numbers > 0")
+        for key, value in zip(("clf.q_x", "clf.r_u"), weights):
+            require_number(value, key)
         from ..clf.riccati import model_lqr
         lqr = model_lqr(model, *weights)
         return ModelLqrGain(lyap, u_min, u_max, K=lqr.K @ model.C)

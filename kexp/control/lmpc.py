@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
+from .checks import check_lmpc_config, check_model_parts
 from .condense import block_maps_expm, block_maps_poly, condense, linearised_vmax, rows_hold
 from .kernels import rollout, rollout_poly
 from .memory import check_memory
@@ -64,27 +65,7 @@ class LmpcConfig:
     qp_max_iter: int = 100
 
     def __post_init__(self):
-        for key in ("w", "r", "terminal", "tol", "slack_weight", "qp_eps"):
-            require_number(getattr(self, key), f"lmpc.{key}")
-        for key in ("max_iter", "qp_max_iter"):
-            require_number(getattr(self, key), f"lmpc.{key}", integer=True)
-        if not (isinstance(self.horizon, (int, np.integer)) and self.horizon >= 1):
-            raise ConfigError(f"lmpc.horizon={self.horizon}: use an int >= 1")
-        if not (self.w > 0 and self.r > 0 and np.isfinite(self.w) and np.isfinite(self.r)):
-            raise ConfigError(f"lmpc weights w={self.w}, r={self.r}: both must be finite and > 0")
-        if self.state_cost not in STATE_COSTS:
-            raise ConfigError(f"lmpc.state_cost={self.state_cost!r}; valid: {STATE_COSTS}")
-        if not (self.terminal >= 0 and np.isfinite(self.terminal)):
-            raise ConfigError(f"lmpc.terminal={self.terminal}: use a finite number >= 0")
-        if self.max_iter < 1:
-            raise ConfigError(f"lmpc.max_iter={self.max_iter}: use an int >= 1 (1 = real-time iteration)")
-        if self.iterate_when not in ITERATE_WHEN:
-            raise ConfigError(f"lmpc.iterate_when={self.iterate_when!r}; valid: {ITERATE_WHEN}")
-        if self.qp_solver not in SOLVERS:
-            raise ConfigError(f"lmpc.qp_solver={self.qp_solver!r}; valid: {SOLVERS}")
-        if not self.slack_weight > 0:
-            raise ConfigError(f"lmpc.slack_weight={self.slack_weight}: use a number > 0")
-        block_sizes(self.horizon, self.free_moves, self.blocks)  # validates the blocking
+        check_lmpc_config(self, STATE_COSTS, ITERATE_WHEN, SOLVERS)
 
 
 @dataclass(frozen=True)
@@ -144,14 +125,18 @@ class Lmpc:
 
     def __init__(self, model, clf, law, config: LmpcConfig, u_min, u_max, *, prediction_every: int = 0):
         """``prediction_every``: return the exact predicted z over the horizon every this many steps (0:
-        never); it costs one extra rollout."""
+        never); it costs one extra rollout.  Raises :class:`~kexp.errors.ConfigError` for bounds that are not finite
+        u_min < u_max, a CLF or law that does not fit the model (:mod:`kexp.control.checks`; a law on other bounds
+        only warns), a bad ``prediction_every`` or a horizon over the memory budget."""
+        if not isinstance(config, LmpcConfig):
+            raise ConfigError(f"Lmpc: config={config!r}: pass an LmpcConfig")
+        require_number(prediction_every, "Lmpc prediction_every", integer=True)
+        if prediction_every < 0:
+            raise ConfigError(f"Lmpc prediction_every={prediction_every}: use an int >= 0 (0: never)")
+        self.u_min, self.u_max = check_model_parts(model, clf, law, u_min, u_max, "Lmpc")
         self.model, self.clf, self.law, self.cfg = model, clf, law, config
         self.prediction_every = int(prediction_every)
         self.m, self.k = model.m, model.k
-        self.u_min = np.broadcast_to(np.asarray(u_min, float), (self.m,)).copy()
-        self.u_max = np.broadcast_to(np.asarray(u_max, float), (self.m,)).copy()
-        if not np.all(self.u_min < self.u_max):
-            raise ConfigError(f"controller bounds: need u_min < u_max, got {u_min}, {u_max}")
         check_memory(config, self.k, self.m)
         self.sizes = block_sizes(config.horizon, config.free_moves, config.blocks)
         self.bos = block_of_step(self.sizes)
