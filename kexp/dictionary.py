@@ -15,6 +15,11 @@ from .errors import ConfigError
 MAX_FUNCTIONS = 5000
 
 
+def _is_int(value) -> bool:
+    """An int or numpy integer, not a bool (True would pass for 1)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
 def monomial_exponents(n: int, degree: int, *, include_constant: bool = True,
                        weights: tuple[int, ...] | None = None) -> np.ndarray:
     """Exponents α (rows, shape (N, n)) with Σ w_i α_i ≤ degree, graded then lexicographic with x1 first:
@@ -47,16 +52,28 @@ class Monomials:
     exponents: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        if not (isinstance(self.n, (int, np.integer)) and self.n >= 1):
+        if not (_is_int(self.n) and self.n >= 1):
             raise ConfigError(f"dictionary.n={self.n!r}: the state dimension must be an int >= 1")
-        if not (isinstance(self.degree, (int, np.integer)) and self.degree >= 1):
+        if not (_is_int(self.degree) and self.degree >= 1):
             raise ConfigError(f"dictionary.degree={self.degree!r}: use an int >= 1")
+        if not isinstance(self.include_constant, (bool, np.bool_)):
+            raise ConfigError(f"dictionary.include_constant={self.include_constant!r}: use true or false")
         if self.weights is not None:
-            w = tuple(int(v) for v in self.weights)
+            w = self.weights
+            if isinstance(w, (str, bytes)) or not np.iterable(w) or not all(_is_int(v) for v in w):
+                raise ConfigError(f"dictionary.weights={w!r}: give {self.n} ints >= 1, or null")
+            w = tuple(int(v) for v in w)
             if len(w) != self.n or min(w) < 1:
                 raise ConfigError(f"dictionary.weights={self.weights!r}: give {self.n} positive ints")
             object.__setattr__(self, "weights", w)
         if self.scale is not None:
+            try:
+                raw = np.asarray(self.scale)
+                ok = raw.dtype.kind in "iuf" and raw.ndim <= 1
+            except (ValueError, TypeError):
+                ok = False
+            if not ok:
+                raise ConfigError(f"dictionary.scale={self.scale!r}: give a number or {self.n} numbers, or null")
             s = tuple(float(v) for v in np.atleast_1d(self.scale))
             if len(s) == 1:
                 s = s * self.n
@@ -113,7 +130,10 @@ class Monomials:
         return p
 
     def _check_x(self, x) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
+        try:
+            x = np.asarray(x, dtype=float)
+        except (ValueError, TypeError):
+            raise ConfigError(f"dictionary expects states of shape (M, {self.n}) of numbers, got {x!r:.80}") from None
         if x.ndim == 1:
             x = x[None]
         if x.ndim != 2 or x.shape[1] != self.n:

@@ -70,12 +70,20 @@ class IdentifyConfig:
             raise ConfigError(f"identification.chunk_size={self.chunk_size}: use an int >= 1")
         if self.on_invalid not in ("error", "drop"):
             raise ConfigError(f"identification.on_invalid={self.on_invalid!r}; valid: 'error', 'drop'")
-        if self.keep is not None and self.keep < 1:
-            raise ConfigError(f"identification.keep={self.keep}: use an int >= 1 or null (keep all)")
-        if self.max_residual is not None and not self.max_residual > 0:
-            raise ConfigError(f"identification.max_residual={self.max_residual}: use a number > 0 or null")
-        if not self.residual_horizon > 0 or not self.prediction_horizon > 0:
-            raise ConfigError("identification.residual_horizon and prediction_horizon must be > 0 seconds")
+        if self.keep is not None:
+            require_number(self.keep, "identification.keep", integer=True)
+            if self.keep < 1:
+                raise ConfigError(f"identification.keep={self.keep}: use an int >= 1 or null (keep all)")
+        if self.max_residual is not None:
+            require_number(self.max_residual, "identification.max_residual")
+            if not self.max_residual > 0:
+                raise ConfigError(f"identification.max_residual={self.max_residual}: use a number > 0 or null")
+        for key in ("residual_horizon", "prediction_horizon"):
+            value = getattr(self, key)
+            if not 0 < value < np.inf:
+                raise ConfigError(f"identification.{key}={value}: use a finite number of seconds > 0")
+        if not isinstance(self.compare_projection, (bool, np.bool_)):
+            raise ConfigError(f"identification.compare_projection={self.compare_projection!r}: use true or false")
         if not 0 <= self.holdout < 1:
             raise ConfigError(f"identification.holdout={self.holdout}: use a fraction in [0, 1)")
         if self.inputs not in INPUT_METHODS:
@@ -128,6 +136,13 @@ def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monom
     data and G is never evaluated (only ``system.n``, ``m``, ``equilibrium`` and names are read).  BLAS runs on
     one thread here, so the model is the same whatever OPENBLAS_NUM_THREADS is (tested).
     """
+    for value, kind, what in ((system, ControlAffineSystem, "system"), (dictionary, Monomials, "dictionary"),
+                              (config, IdentifyConfig, "config")):
+        if not isinstance(value, kind):
+            raise ConfigError(f"identify(): {what}={value!r:.80}; expected a {kind.__name__}")
+    if not (hasattr(dataset, "split") and hasattr(dataset, "iter_pairs")):
+        raise ConfigError(f"identify(): dataset={dataset!r:.80}; give a Dataset (kexp.data.collect) or recorded "
+                          "runs (kexp.data.open_runs)")
     regress = config.inputs == "regression"
     if regress and not dataset.forced:
         raise DataError("identification.inputs=regression needs forced data: collect under an input excitation "
@@ -140,7 +155,14 @@ def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monom
                         "regress B and b from the forced data")
     if dictionary.n != system.n or dataset.n != system.n:
         raise ConfigError(f"dimension mismatch: system n={system.n}, dictionary n={dictionary.n}, data n={dataset.n}")
+    recorded = getattr(dataset, "system_name", None)
+    if recorded not in (None, "", "recorded") and recorded != system.name:   # "recorded": runs read without a name
+        raise DataError(f"the dataset was collected with system {recorded!r}, but identify() was given system "
+                        f"{system.name!r}; identify with the system that produced the data")
     train, test = dataset.split(config.holdout, config.holdout_seed)
+    if train.n_traj == 0:
+        raise DataError(f"identification.holdout={config.holdout} holds out all {dataset.n_traj} trajectories, "
+                        "leaving none to fit: lower identification.holdout (e.g. 0.2) or collect more trajectories")
     quality_data = test if test is not None else train
     lie = lambda X: dictionary.lie(X, system.input_matrix(X))  # noqa: E731
     if regress:

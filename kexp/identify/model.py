@@ -8,6 +8,8 @@ Saved as one ``.npz`` holding arrays plus a JSON ``meta`` string (no pickle), wi
 from __future__ import annotations
 
 import json
+import numbers
+import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,6 +62,9 @@ class KoopmanBilinearModel:
         for name in _ARRAYS:
             dtype = complex if name in ("eigenvalues", "discrete") else (int if name == "block" else float)
             object.__setattr__(self, name, _ro(getattr(self, name), dtype))
+        if self.x_eq.shape != (self.dictionary.n,):
+            raise ConfigError(f"inconsistent model: x_eq {self.x_eq.shape} (want ({self.dictionary.n},), the "
+                              "dictionary's n)")
         k = self.Lambda.shape[0]
         n = self.x_eq.shape[0]
         checks = [(self.Lambda.shape == (k, k), f"Lambda {self.Lambda.shape}"),
@@ -72,9 +77,14 @@ class KoopmanBilinearModel:
         for ok, what in checks:
             if not ok:
                 raise ConfigError(f"inconsistent model: {what}")
-        for name in ("Lambda", "B", "b", "C", "T", "psi0"):
+        for name in ("Lambda", "B", "b", "C", "T", "psi0", "x_eq"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise ConfigError(f"model {name} contains NaN/inf")
+        if not isinstance(self.state_names, (tuple, list)) or len(self.state_names) != n:
+            raise ConfigError(f"inconsistent model: state_names={self.state_names!r:.80}; want {n} names")
+        dt = self.dt
+        if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, numbers.Real) or not 0 < dt < np.inf:
+            raise ConfigError(f"model dt={dt!r}: the sampling time must be a finite number > 0 seconds")
 
     def __eq__(self, other) -> bool:
         """Exact equality of every array and setting (the report is not compared)."""
@@ -102,6 +112,8 @@ class KoopmanBilinearModel:
     def lift(self, x: np.ndarray) -> np.ndarray:
         """z = Ψ(x) − Ψ(x_eq): (M, n) -> (M, k), or (n,) -> (k,)."""
         x = np.asarray(x, dtype=float)
+        if x.shape[-1:] != (self.n,):
+            raise ConfigError(f"model.lift: x must have shape (n,) or (M, n) with n={self.n}, got {x.shape}")
         z = self.dictionary.lift(x.reshape(-1, self.n)) @ self.T - self.psi0
         return z[0] if x.ndim == 1 else z
 
@@ -115,7 +127,10 @@ class KoopmanBilinearModel:
 
     def step_matrices(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Exact one-step map of the model for input ``u`` (m,) held over Δ: z⁺ = Ad z + cd."""
-        u = np.asarray(u, dtype=float).reshape(self.m)
+        try:
+            u = np.asarray(u, dtype=float).reshape(self.m)
+        except ValueError:   # the error path only: the closed loop calls this for every new input
+            raise ConfigError(f"model.step_matrices: u must have shape ({self.m},), got {np.shape(u)}") from None
         A = self.Lambda + np.einsum("i,ijk->jk", u, self.B)
         c = u @ self.b
         aug = np.zeros((self.k + 1, self.k + 1))
@@ -132,8 +147,11 @@ class KoopmanBilinearModel:
             u = u[:, None]
         if u.ndim != 2 or u.shape[1] != self.m:
             raise ConfigError(f"predict: u must have shape (T, {self.m}), got {u.shape}")
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape[-1:] != (self.n,) or x0.size != self.n:
+            raise ConfigError(f"predict: x0 must have shape ({self.n},), got {x0.shape}")
         z = np.empty((u.shape[0] + 1, self.k))
-        z[0] = self.lift(np.asarray(x0, dtype=float))
+        z[0] = self.lift(x0)
         cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
         for t, ut in enumerate(u):
             key = ut.tobytes()
@@ -164,6 +182,10 @@ class KoopmanBilinearModel:
 
     def free_response(self, z0: np.ndarray, steps: int) -> np.ndarray:
         """Unforced model response z(jΔ) = exp(ΛjΔ) z0 for j = 0..steps; z0 (M, k) -> (steps+1, M, k)."""
+        if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, numbers.Integral) or steps < 0:
+            raise ConfigError(f"free_response: steps={steps!r}; use an int >= 0")
+        if np.shape(z0)[-1:] != (self.k,):
+            raise ConfigError(f"free_response: z0 must have shape (M, {self.k}) or ({self.k},), got {np.shape(z0)}")
         ad = sla.expm(self.Lambda * self.dt)
         out = np.empty((steps + 1,) + np.shape(z0))
         out[0] = z0
@@ -190,6 +212,8 @@ class KoopmanBilinearModel:
 
     @classmethod
     def load(cls, path: str | Path) -> "KoopmanBilinearModel":
+        if not isinstance(path, (str, os.PathLike)):
+            raise ConfigError(f"KoopmanBilinearModel.load(path={path!r}): give the model file's path (str or Path)")
         path = Path(path)
         if not path.exists():
             raise ModelFileError(f"model file {path} does not exist; run identification first or fix the path")
@@ -200,10 +224,21 @@ class KoopmanBilinearModel:
         except (OSError, ValueError, KeyError, EOFError, NotImplementedError, zipfile.BadZipFile) as exc:  # corrupt
             raise ModelFileError(f"model file {path} is not a readable kexp model ({type(exc).__name__}: {exc}); "
                                  "re-run identification to recreate it") from None
-        if meta.get("format") != FORMAT:
-            raise ModelFileError(f"{path} is not a kexp model file (format {meta.get('format')!r})")
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise ModelFileError(f"{path} is not a kexp model file "
+                                 f"(format {meta.get('format') if isinstance(meta, dict) else None!r})")
         if meta.get("version") != FORMAT_VERSION:
             raise ModelFileError(f"{path} has model format version {meta.get('version')}; this kexp reads version "
                                  f"{FORMAT_VERSION}: re-run identification to recreate it")
-        return cls(**arrays, dictionary=Monomials.from_spec(meta["dictionary"]), dt=float(meta["dt"]),
-                   system=meta["system"], state_names=tuple(meta["state_names"]), report=meta["report"])
+        try:
+            dt = meta["dt"]
+            if isinstance(dt, bool) or not isinstance(dt, (int, float)):
+                raise ConfigError(f"dt={dt!r} is not a number")
+            if not (isinstance(meta["system"], str) and isinstance(meta["report"], dict)):
+                raise ConfigError("system must be a string and report a mapping")
+            return cls(**arrays, dictionary=Monomials.from_spec(meta["dictionary"]), dt=float(dt),
+                       system=meta["system"], state_names=tuple(meta["state_names"]), report=meta["report"])
+        except (ConfigError, KeyError, TypeError, ValueError, AttributeError) as exc:   # damaged or hand-edited
+            detail = f"missing {exc}" if isinstance(exc, KeyError) else str(exc).splitlines()[0] if str(exc) else ""
+            raise ModelFileError(f"model file {path} is damaged ({type(exc).__name__}: {detail}); "
+                                 "re-run identification to recreate it") from None

@@ -10,6 +10,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..data.runs import PairSource, window_samples
+from ..errors import DataError
 
 
 def eigenfunction_residuals(dataset: PairSource, lift_full, T: np.ndarray, eigenvalues: np.ndarray,
@@ -40,6 +41,12 @@ def eigenfunction_residuals(dataset: PairSource, lift_full, T: np.ndarray, eigen
 def prediction_error(model, dataset: PairSource, h: int, max_forced_windows: int = 500) -> float:
     """Relative error of the model's h-step prediction: unforced x̂(t+hΔ) = x_eq + C·e^{ΛhΔ} z(x(t)), or, for
     a forced dataset, under the recorded inputs held over each sample (at most ``max_forced_windows``)."""
+    if dataset.n != model.n:
+        raise DataError(f"prediction_error: the data have n={dataset.n} states, the model n={model.n}; "
+                        "use data of the model's system")
+    if not abs(dataset.dt - model.dt) <= 1e-9 * model.dt:
+        raise DataError(f"prediction_error: the data are sampled at dt={dataset.dt:g}, the model at "
+                        f"dt={model.dt:g}; use data with the model's sampling time")
     forced = dataset.forced
     x0, truth, U = window_samples(dataset, h, max_forced_windows if forced else 20000, inputs=forced)
     if x0.shape[0] == 0:

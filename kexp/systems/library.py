@@ -2,6 +2,7 @@
 invariant subspaces, and a Duffing oscillator.  All vectorised over leading axes of ``x`` (..., n)."""
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -9,6 +10,29 @@ import numpy as np
 
 from ..errors import SystemDefinitionError
 from .base import ControlAffineSystem
+
+
+def _require_finite(system, *keys: str) -> None:
+    """Raise a one-line SystemDefinitionError unless each parameter ``keys`` of ``system`` is a finite real number
+    (not a bool): a NaN parameter would otherwise reach the integrator, which does not stop on NaN."""
+    for key in keys:
+        value = getattr(system, key)
+        ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+        if not (ok and np.isfinite(value)):
+            raise SystemDefinitionError(f"system {system.name!r}: {key}={value!r}; use a finite number "
+                                        f"(system.params.{key})")
+
+
+def _matrix(value, key: str) -> np.ndarray:
+    """``value`` as a float matrix, refusing strings, bools and ragged or non-numeric entries in one line."""
+    try:
+        raw = np.asarray(value)
+        ok = raw.dtype.kind in "iuf"
+    except (ValueError, TypeError):
+        ok = False
+    if not ok:
+        raise SystemDefinitionError(f"linear system: {key}={value!r}; give a matrix of numbers (a list of rows)")
+    return np.asarray(raw, dtype=float)
 
 
 def _const_input(x: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -35,6 +59,9 @@ class VanDerPol(ControlAffineSystem):
     m: ClassVar[int] = 1
     constant_input_matrix: ClassVar[bool] = True
 
+    def __post_init__(self):
+        _require_finite(self, "mu")
+
     def drift(self, x):
         x = np.asarray(x, dtype=float)
         x1, x2 = x[..., 0], x[..., 1]
@@ -54,6 +81,9 @@ class Pendulum(ControlAffineSystem):
     n: ClassVar[int] = 2
     m: ClassVar[int] = 1
     constant_input_matrix: ClassVar[bool] = True
+
+    def __post_init__(self):
+        _require_finite(self, "c")
 
     def drift(self, x):
         x = np.asarray(x, dtype=float)
@@ -84,6 +114,9 @@ class Duffing(ControlAffineSystem):
     m: ClassVar[int] = 1
     constant_input_matrix: ClassVar[bool] = True
 
+    def __post_init__(self):
+        _require_finite(self, "alpha", "beta", "delta")
+
     def drift(self, x):
         x = np.asarray(x, dtype=float)
         x1, x2 = x[..., 0], x[..., 1]
@@ -103,8 +136,8 @@ class Linear(ControlAffineSystem):
     constant_input_matrix: ClassVar[bool] = True
 
     def __post_init__(self):
-        a = np.asarray(self.A, dtype=float)
-        b = np.asarray(self.B, dtype=float)
+        a = _matrix(self.A, "A")
+        b = _matrix(self.B, "B")
         if a.ndim != 2 or a.shape[0] != a.shape[1]:
             raise SystemDefinitionError(f"linear system: A must be square, got shape {a.shape}")
         if b.ndim != 2 or b.shape[0] != a.shape[0]:
@@ -146,6 +179,7 @@ class SlowManifold(ControlAffineSystem):
     constant_input_matrix: ClassVar[bool] = True
 
     def __post_init__(self):
+        _require_finite(self, "mu", "lam")
         if self.inputs not in ("x2", "both"):
             raise SystemDefinitionError(f"slow_manifold: inputs={self.inputs!r}; use 'x2' or 'both'")
         if abs(self.lam - 2 * self.mu) < 1e-12:

@@ -31,6 +31,12 @@ def _import_class(path: str) -> type:
 def make_system(name: str, params: Mapping[str, Any] | None = None) -> ControlAffineSystem:
     """Build and check a system.  ``name`` is one of :data:`SYSTEMS` or ``"module:Class"`` of the user's own
     :class:`ControlAffineSystem` subclass; ``params`` are its constructor's keyword arguments."""
+    if not isinstance(name, str) or not name:
+        raise SystemDefinitionError(f"system name {name!r}: give a name, one of {sorted(SYSTEMS)} or "
+                                    "'package.module:ClassName'")
+    if params is not None and not isinstance(params, Mapping):
+        raise SystemDefinitionError(f"system {name!r}: params={params!r}; give a mapping of parameter names to "
+                                    "values, e.g. {'mu': 2.0}")
     params = dict(params or {})
     if name in SYSTEMS:
         cls = SYSTEMS[name]
