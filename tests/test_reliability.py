@@ -212,3 +212,36 @@ def test_a_bug_leaves_an_error_summary_not_a_running_one(tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary == {"status": "error", "completed": False, "message": "internal error: RuntimeError: boom",
                        "error_type": "RuntimeError"}
+
+
+@pytest.mark.parametrize("module,argv,line", [
+    ("kexp.recording.diff", [], "kexp-diff: error: the following arguments are required: a, b (see kexp-diff --help)"),
+    ("kexp.recording.render", ["a.mcap", "--bogus"],
+     "kexp-render: error: unrecognized arguments: --bogus (see kexp-render --help)"),
+    ("kexp.app.report", [], "kexp-report: error: the following arguments are required: sweep_dir (see kexp-report "
+                            "--help)"),
+    ("kexp.app.results", ["nope"], "kexp-results: error: argument cmd: invalid choice: 'nope' (choose from "
+                                   "'collect', 'table', 'robustness') (see kexp-results --help)"),
+    ("kexp.analysis.figures", ["paper"], "kexp-figures: error: the following arguments are required: source, "
+                                         "-o/--out (see kexp-figures --help)"),
+])
+def test_a_bad_command_line_is_one_line_exit_2(module, argv, line, capsys):
+    """argparse printed its usage line before the error (two lines); kexp's commands print one (kexp.cli.Parser)."""
+    import importlib
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit) as ex:
+        main(argv)
+    assert ex.value.code == 2 and capsys.readouterr().err.strip().splitlines() == [line]
+
+
+def test_kexp_diff_refuses_logs_without_a_message(tmp_path, capsys):
+    """Two logs cut before their first chunk compared 'equal'; nothing to compare is an error, exit 2."""
+    from kexp.recording.diff import main as diff_main
+    from kexp.recording.writer import RunLogger
+    with RunLogger(tmp_path / "full.mcap") as log:
+        log.write("/summary", 0.0, {"status": "completed", "message": "", "metrics": {}, "completed": True})
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes((tmp_path / "full.mcap").read_bytes()[:200])
+    assert diff_main([str(cut), str(cut)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"kexp-diff: error: {cut} holds no message (cut.mcap is truncated")

@@ -18,13 +18,13 @@ Bad input (a log without steps, CSVs of two systems, an option the kind does not
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..app.results import oserror
+from ..cli import Parser
 from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, read_log
 from .roa import _plt, roa_figure  # noqa: F401  (roa_figure: kexp-figures roa; re-exported)
@@ -157,7 +157,7 @@ def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) 
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(prog="kexp-figures", description="Figures from kexp logs and sweeps.")
+    p = Parser(prog="kexp-figures", description="Figures from kexp logs and sweeps.")
     p.add_argument("kind", choices=["paper", "roa", "theorem1"])
     p.add_argument("source", nargs="+", help="run.mcap (paper), a sweep folder or results CSVs (roa), a run folder "
                    "or its run.mcap (theorem1)")

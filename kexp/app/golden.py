@@ -5,11 +5,12 @@ Regenerate (after an intended change of behaviour) with:  ``python -m kexp.app.g
 """
 from __future__ import annotations
 
-import argparse
 import shutil
 import sys
 import tempfile
 from pathlib import Path
+
+from ..cli import Parser
 
 GOLDEN = {
     "paper_vanderpol": ["+experiment=paper_vanderpol"],
@@ -40,7 +41,7 @@ def record(name: str, out: Path) -> Path:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m kexp.app.golden", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m kexp.app.golden", description=__doc__.splitlines()[0])
     p.add_argument("names", nargs="*", default=sorted(GOLDEN), help=f"which ones (default all: {sorted(GOLDEN)})")
     p.add_argument("-o", "--out", default=str(RECORDINGS), help="folder (default: the repository's recordings/)")
     args = p.parse_args(argv)

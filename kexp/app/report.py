@@ -9,7 +9,6 @@ The rows (one per job; a failed or never-started job keeps its row and its ``rea
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
@@ -17,6 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..cli import Parser
 from .aggregate import ReportError, aggregate, summarize
 
 CSV_NAME, MD_NAME, SUMMARY_CSV_NAME = "report.csv", "report.md", "report_summary.csv"
@@ -222,7 +222,7 @@ def report(sweep_dir: str | Path, out_dir: str | Path | None = None, *, pictures
 
 
 def _main(argv) -> int:
-    p = argparse.ArgumentParser(prog="kexp-report", description="Tabulate a sweep of kexp runs (kexp --multirun): "
+    p = Parser(prog="kexp-report", description="Tabulate a sweep of kexp runs (kexp --multirun): "
                                 "report.csv, report_summary.csv, report.md and PNG pictures (with matplotlib).")
     p.add_argument("sweep_dir", help="the sweep folder (e.g. multirun/<date>/<time>), searched recursively")
     p.add_argument("-o", "--out", dest="out_dir", default=None, help="output folder (default: the sweep folder)")

@@ -12,7 +12,6 @@ re-running the sweeps.  A CSV's name is ``<system>_<config>.csv``; the oracle of
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import re
@@ -21,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cli import Parser
 from .aggregate import ReportError, aggregate
 
 COLUMNS = ["x0_1", "x0_2", "status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms",
@@ -177,7 +177,7 @@ def table(paths: list[str | Path]) -> str:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(prog="kexp-results", description=__doc__.splitlines()[0])
+    p = Parser(prog="kexp-results", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("collect", help="condense a sweep into NAME.csv")
     c.add_argument("sweep")

@@ -8,7 +8,6 @@ ignored unless asked for.  The first divergence is the earliest in log time (cha
 """
 from __future__ import annotations
 
-import argparse
 import re
 import sys
 from dataclasses import dataclass, field
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cli import Parser
 from ..errors import ConfigError
 from . import behaviour
 from .policy import POLICIES, ChannelRule, Policy, make_policy
@@ -227,6 +227,9 @@ def diff_logs(a: RunLog | str | Path, b: RunLog | str | Path, *, atol: float = 0
     pol = policy if isinstance(policy, Policy) else make_policy(policy, rtol=rtol, atol=atol)
     la = a if isinstance(a, RunLog) else read_log(a)
     lb = b if isinstance(b, RunLog) else read_log(b)
+    for log in (la, lb):   # two such logs were "equal": no verdict can come from nothing
+        if not any(log.channels.values()):
+            raise LogError(f"{log.path} holds no message ({log.warning or 'an empty log'}): nothing to compare")
     # the file's own warning names it by its name; two logs are often both run.mcap: say which, by its path
     warnings = tuple(f"{side} ({log.path}): {log.warning}" for side, log in (("a", la), ("b", lb))
                      if log.warning) + tuple(version_warnings(la, lb))
@@ -273,7 +276,7 @@ def diff_logs(a: RunLog | str | Path, b: RunLog | str | Path, *, atol: float = 0
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="kexp-diff", description="Compare two kexp run logs (MCAP). "
+    p = Parser(prog="kexp-diff", description="Compare two kexp run logs (MCAP). "
                                 "Exit 0: equal, 1: different, 2: unreadable or bad arguments.")
     p.add_argument("a")
     p.add_argument("b")

@@ -16,7 +16,6 @@ Entities
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -27,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from ..cli import Parser
 from ..errors import KexpError
 from .reader import RunLog, read_log
 from .render_view import default_blueprint, summary_markdown
@@ -341,7 +341,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
 
 
 def _cli(argv: list[str] | None) -> int:
-    parser = argparse.ArgumentParser(prog="kexp-render",
+    parser = Parser(prog="kexp-render",
                                      description="Render a kexp run log (run.mcap) into a Rerun recording (.rrd).")
     parser.add_argument("mcap", help="the run log, e.g. outputs/<date>/<time>/run.mcap")
     parser.add_argument("-o", "--output", default=None, help="the .rrd to write (default: next to the log)")
