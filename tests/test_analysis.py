@@ -174,7 +174,7 @@ def test_paper_figure_of_a_3_state_run_labels_its_projection(sweep3, tmp_path, m
     monkeypatch.setattr(plt, "close", close_keeping_titles)
     png = paper_figure(sweep3 / "0" / "run.mcap", tmp_path / "p.png")
     assert png.stat().st_size > 20_000
-    assert titles == ["states over time", "phase portrait, projection onto (x1, x2) of 3 states"]
+    assert titles == ["states over time", "input (closed loop)", "phase portrait, projection onto (x1, x2) of 3 states"]
 
 
 def test_roa_of_a_mixed_folder_draws_one_row_per_group(sweep3, logged_runs, tmp_path):

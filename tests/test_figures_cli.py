@@ -125,7 +125,7 @@ def test_region_map_inputs_are_checked_as_kexp_results_checks_them(tmp_path, cap
     assert not png.exists()
     code, out, err = _run(capsys, "roa", lmpc, "--oracle", oracle, "-o", png)
     assert code == 0 and err == [] and out.splitlines()[-1] == f"wrote {png}"
-    assert out.startswith("vdp: lmpc: success 4/4, where the oracle succeeds 4/4, J/J_oracle median 1.000")
+    assert out.startswith("vdp: lmpc: success 4/4, where the oracle succeeds 4/4, J/J_oracle min 1.000, median 1.000")
     # x0 on one line (no triangulation: qhull's 'singular input' was a traceback) and an oracle that fails once
     code, out, err = _run(capsys, "roa", lmpc, "--oracle", _csv(tmp_path / "vdp_d.csv", success="False"), "-o", png)
     assert code == 0 and err == [] and "where the oracle succeeds 3/3" in out

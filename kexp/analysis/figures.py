@@ -1,7 +1,7 @@
 """Figures from logs and sweeps (matplotlib, Agg backend, PNG):
 
-- ``paper_figure``: open-loop versus closed-loop trajectories, states over time and the phase portrait, like the
-  paper's Figures 2 and 3;
+- ``paper_figure``: open-loop (u = 0) versus closed-loop trajectories, states and input over time and the phase
+  portrait, like the paper's Figures 2 and 3;
 - ``roa_figure`` (kexp/analysis/roa.py): success over a grid/sample of initial conditions with Ω_r and Ω_r̂ drawn
   in x-space, one row of panels per group of runs, projections onto state pairs for n > 2;
 - ``theorem1_figure``: the Theorem 1 bound beside the measured prediction error.
@@ -27,7 +27,7 @@ from ..app.results import oserror
 from ..cli import Parser
 from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, read_log
-from .roa import _plt, roa_figure  # noqa: F401  (roa_figure: kexp-figures roa; re-exported)
+from .roa import _plt, omega_curves, roa_figure  # noqa: F401  (roa_figure: kexp-figures roa; re-exported)
 
 
 class FigureError(KexpError):
@@ -68,45 +68,78 @@ def out_path(out: str | Path) -> Path:
     return out
 
 
+def _bounds(ctrl: dict) -> list[tuple[str, list[float]]]:
+    """[("u_min", values), ("u_max", values)] of the controller's config, those it holds as numbers."""
+    out = []
+    for key in ("u_min", "u_max"):
+        try:
+            v = np.atleast_1d(np.asarray(ctrl.get(key), dtype=float)).ravel()
+        except (TypeError, ValueError):
+            continue
+        if v.size and np.all(np.isfinite(v)):
+            out.append((key, sorted(set(v.tolist()))))
+    return out
+
+
 def paper_figure(mcap: str | Path, out: str | Path) -> Path:
-    """The log's closed loop (and open loop) over time and in the phase plane, into ``out`` (:func:`out_path`);
-    returns the path written."""
+    """The log's closed loop (and open loop: the plant integrated with u = 0) into ``out`` (:func:`out_path`):
+    the states and the input u(t) over time, stacked on the left (u with the controller's u_min and u_max, when
+    the log's /config holds them), and the phase portrait with Ω_r, Ω_r̂ on the right.  Returns the path written."""
     out = out_path(out)
     log = read_log(mcap)
     steps, ol = _steps(log, mcap), log.messages("/open_loop")
     names = (log.one("/model") or {}).get("state_names") or [f"x{i + 1}" for i in range(len(steps[0]["x"]))]
     t, x = _arr(steps, "t"), _arr(steps, "x")
+    u = np.array([np.atleast_1d(np.asarray(m["u"], float)) for m in steps])
+    cfg = (log.one("/config") or {}).get("config") or {}
     plt = _plt()
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig = plt.figure(figsize=(13.5, 6.4))
+    gs = fig.add_gridspec(2, 2, width_ratios=[1.3, 1], height_ratios=[1.5, 1])
+    ax_x = fig.add_subplot(gs[0, 0])
+    ax_u = fig.add_subplot(gs[1, 0], sharex=ax_x)
+    ax_p = fig.add_subplot(gs[:, 1])
     for i, nm in enumerate(names):
-        ax[0].plot(t, x[:, i], label=f"{nm} closed loop")
+        line, = ax_x.plot(t, x[:, i], label=f"{nm} closed loop")
         if ol:
-            ax[0].plot(_arr(ol, "t"), _arr(ol, "x")[:, i], "--", alpha=0.7, label=f"{nm} open loop")
-    ax[0].set_xlabel("t [s]")
-    ax[0].set_title("states over time")
-    ax[0].legend(fontsize=8)
+            ax_x.plot(_arr(ol, "t"), _arr(ol, "x")[:, i], "--", alpha=0.7, color=line.get_color(),
+                      label=f"{nm} open loop (u = 0)")
+    ax_x.set_xlabel("t [s]")
+    ax_x.set_ylabel("state")
+    ax_x.set_title("states over time")
+    # the legends outside the axes (a trajectory or Ω_r can cover any corner: the pendulum's open loop does)
+    ax_x.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), framealpha=0.85,
+                ncol=2 if len(names) > 4 else 1)
+    # u_k is held over [t_k, t_k+1): steps from each t_k, the last one drawn to the end of its step
+    dt = t[-1] - t[-2] if len(t) > 1 else 0.0
+    tt, uu = np.append(t, t[-1] + dt), np.vstack([u, u[-1:]])
+    for j in range(u.shape[1]):
+        ax_u.plot(tt, uu[:, j], drawstyle="steps-post", label="u" if u.shape[1] == 1 else f"u{j + 1}")
+    for key, values in _bounds(cfg.get("controller") or {}):
+        for k, v in enumerate(values):
+            ax_u.axhline(v, ls="--", lw=1, color="tab:red" if key == "u_max" else "tab:purple",
+                         label=f"{key} = {v:g}" if k == 0 else None)
+    ax_u.set_xlabel("t [s]")
+    ax_u.set_ylabel("u")
+    ax_u.set_title("input (closed loop)")
+    ax_u.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), framealpha=0.85)
     if x.shape[1] >= 2:  # n > 2: the projection onto the first two states, and the title says so
         if ol:
             xo = _arr(ol, "x")
-            ax[1].plot(xo[:, 0], xo[:, 1], "--", color="gray", label="open loop")
-        ax[1].plot(x[:, 0], x[:, 1], label="closed loop")
-        ax[1].plot(x[0, 0], x[0, 1], "o", label="x0")
-        clf = log.one("/clf") or {}
-        for key, style in (("boundary_r", "g-"), ("boundary_r_hat", "g:")):
-            b = np.asarray(clf.get(key) or [], float)
-            if b.size:
-                b = np.vstack([b, b[:1]])
-                ax[1].plot(b[:, 0], b[:, 1], style, lw=1, label="Ω_r" if key == "boundary_r" else "Ω_r̂")
-        ax[1].set_xlabel(names[0])
-        ax[1].set_ylabel(names[1])
-        ax[1].set_title("phase portrait" if x.shape[1] == 2 else
-                        f"phase portrait, projection onto ({names[0]}, {names[1]}) of {x.shape[1]} states")
-        ax[1].legend(fontsize=8)
+            ax_p.plot(xo[:, 0], xo[:, 1], "--", color="gray", label="open loop (u = 0)")
+        ax_p.plot(x[:, 0], x[:, 1], label="closed loop")
+        ax_p.plot(x[0, 0], x[0, 1], "o", label="x0")
+        for b, hat, label in omega_curves(log.one("/clf") or {}):
+            ax_p.plot(b[:, 0], b[:, 1], "g:" if hat else "g-", lw=1, label=label)
+        ax_p.set_xlabel(names[0])
+        ax_p.set_ylabel(names[1])
+        ax_p.set_title("phase portrait" if x.shape[1] == 2 else
+                       f"phase portrait, projection onto ({names[0]}, {names[1]}) of {x.shape[1]} states")
+        ax_p.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, framealpha=0.85)
     else:
-        ax[1].set_visible(False)
-    cfg = (log.one("/config") or {}).get("config") or {}
+        ax_p.set_visible(False)
     name = (cfg.get("system") or {}).get("name")  # a log written from Python may have no /config
-    fig.suptitle(f"{name}: open loop vs closed loop" if name else "open loop vs closed loop")
+    head = "open loop (u = 0) vs closed loop"
+    fig.suptitle(f"{name}: {head}" if name else head)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -145,11 +178,13 @@ def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) 
     bound = consts.bound(tt)
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.semilogy(tt[1:], err[1:], label="measured ‖x(t) − x̂(t)‖")
+    ax.semilogy(tt[1:], err[1:], label=r"measured $\|x(t) - \hat{x}(t)\|$")
     ax.semilogy(tt[1:], bound[1:], "--", label=f"Theorem 1 bound (ν = {consts.nu:.3g}, l_x = {consts.l_x:.3g})")
     ax.set_xlabel("t [s]")
-    ax.legend(fontsize=8)
-    ax.set_title("prediction error vs Theorem 1")
+    ax.set_ylabel(r"$\|x(t) - \hat{x}(t)\|$")
+    ax.legend(fontsize=8, loc="best", framealpha=0.85)
+    name = (cfg.get("system") or {}).get("name") or "system"
+    ax.set_title(f"prediction error vs Theorem 1: {name}, first {tt[-1]:.3g} s", fontsize=10)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -178,8 +213,8 @@ def main(argv=None) -> None:
             out, panels = region_map(args.source, args.oracle, out)
             for f in panels:
                 print(f"{f['label']}: success {f['successes']}/{f['runs']}, where the oracle succeeds "
-                      f"{f['both']}/{f['oracle_successes']}, J/J_oracle median {f['median_ratio']:.3f}, worst "
-                      f"{f['worst_ratio']:.3f}")
+                      f"{f['both']}/{f['oracle_successes']}, J/J_oracle min {f['min_ratio']:.3f}, median "
+                      f"{f['median_ratio']:.3f}, worst {f['worst_ratio']:.3f}")
         elif args.kind == "roa":
             out, facts = roa_figure(source, out)
             for g in facts["groups"]:

@@ -3,10 +3,13 @@ group of runs.
 
 Runs are grouped as ``kexp-report`` groups them (identical overrides apart from ``sim.x0``) and, within that, by
 system: runs of different systems or settings are never drawn in one panel.  A 2-state group gets one panel in
-x-space with Ω_r and Ω_r̂ (from the group's first log); an n-state group (n > 2) gets one panel per pair of
+x-space with Ω_r and Ω_r̂ (from the group's first log, their levels in the legend); an n-state group (n > 2) gets one panel per pair of
 states, each titled "projection onto (xi, xj)" (level sets are not curves in a projection: Ω_r is not drawn).
-Jobs that failed (error, interrupted, no summary) are drawn as grey crosses where their x0 is known, and every one
-of them is returned in ``failed`` with its reason, never dropped.
+Each panel's title states the success rule with the group's T and tol (``sim.T``, ``sim.tol`` from the job's
+.hydra/config.yaml or its log's /config).  A completed run without success is "not settled by T" when
+‖x(T) − x_eq‖ < 10·tol (it was converging: a longer T would likely count it) and "failed" otherwise.  Jobs that
+failed (error, interrupted, no summary) are drawn as grey crosses where their x0 is known, and every one of them is
+returned in ``failed`` with its reason, never dropped.
 """
 from __future__ import annotations
 
@@ -21,7 +24,9 @@ from ..recording.reader import read_log
 
 MAX_GROUPS = 8       # more groups than this: refuse, listing them (one figure per group is unreadable beyond)
 MAX_PAIRS = 6        # n > 4: the first 6 state pairs
-KINDS = (("success", dict(marker="o", color="tab:green")), ("no success", dict(marker="o", color="tab:red")),
+NOT_SETTLED = "not settled by T (‖x(T)‖ < 10·tol)"
+KINDS = (("success", dict(marker="o", color="tab:green")),
+         (NOT_SETTLED, dict(marker="^", color="tab:orange")), ("failed", dict(marker="o", color="tab:red")),
          ("diverged", dict(marker="x", color="tab:red")), ("failed job", dict(marker="x", color="0.5")))
 
 
@@ -29,10 +34,52 @@ class RoaError(KexpError):
     """The sweep cannot be drawn as one region-of-attraction figure (too many groups)."""
 
 
-def _kind(row: dict) -> str:
+def _kind(row: dict, tol: float | None = None) -> str:
     if row["ok"]:
-        return "success" if row["success"] else "no success"
+        if row["success"]:
+            return "success"
+        err = row.get("final_error")
+        return NOT_SETTLED if tol is not None and err is not None and err < 10 * tol else "failed"
     return "diverged" if row["status"] == "diverged" else "failed job"
+
+
+def _level(v) -> float | None:
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) else None
+
+
+def omega_curves(clf: dict) -> list[tuple[np.ndarray, bool, str]]:
+    """The closed Ω boundaries of a log's /clf as [(points (k, 2), is Ω_r̂, mathtext label with the level)]: one
+    curve labelled "Ω_r = Ω_r̂" when r == r̂ (the same level set), else Ω_r and Ω_r̂ (those with points)."""
+    r, rh = _level(clf.get("r")), _level(clf.get("r_hat"))
+    b_r = np.asarray(clf.get("boundary_r") or [], float).reshape(-1, 2)
+    b_rh = np.asarray(clf.get("boundary_r_hat") or [], float).reshape(-1, 2)
+    close = [np.vstack([b, b[:1]]) if b.size else b for b in (b_r, b_rh)]
+    if r is not None and rh is not None and np.isclose(r, rh, rtol=1e-9, atol=0.0) and (b_r.size or b_rh.size):
+        return [(close[0] if b_r.size else close[1], False, rf"$\Omega_r = \Omega_{{\hat r}}$ (r = {r:.3g})")]
+    out = []
+    for b, hat, name, sym, lv in ((close[0], False, r"$\Omega_r$", "r", r),
+                                  (close[1], True, r"$\Omega_{\hat r}$", r"$\hat r$", rh)):
+        if b.size:
+            out.append((b, hat, name + ("" if lv is None else f" ({sym} = {lv:.3g})")))
+    return out
+
+
+def _sim_settings(job: Path, log=None) -> dict:
+    """The job's sim settings (T, tol): its .hydra/config.yaml, else its log's /config; {} when neither says."""
+    import yaml
+    try:
+        cfg = yaml.safe_load((job / ".hydra" / "config.yaml").read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        cfg = ((log.one("/config") or {}).get("config") or {}) if log is not None else {}
+    sim = cfg.get("sim") if isinstance(cfg, dict) else None
+    return {k: _level(sim.get(k)) for k in ("T", "tol")} if isinstance(sim, dict) else {}
+
+
+def success_rule(sim: dict) -> str:
+    """The success rule with the values of T and tol (those known)."""
+    tol, T = sim.get("tol"), sim.get("T")
+    return (f"success: ‖x(T) − x_eq‖ < {'tol' if tol is None else f'{tol:g}'} at "
+            f"{'T' if T is None else f'T = {T:g} s'}")
 
 
 def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
@@ -56,32 +103,34 @@ def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
     return out
 
 
-def _group_meta(members: list[dict]) -> tuple[int, list[str], np.ndarray, np.ndarray]:
-    """(n, state names, boundary_r, boundary_r_hat) of a group: n is the most common length of x0 (the state
-    dimension), names and Ω boundaries come from the first log in the group."""
+def _group_meta(members: list[dict]) -> tuple[int, list[str], list, dict]:
+    """(n, state names, Ω curves (:func:`omega_curves`), sim settings {T, tol}) of a group: n is the most common
+    length of x0 (the state dimension), names and Ω curves come from the first log in the group, T and tol from the
+    first job that tells them (the runs of a group share their settings apart from x0)."""
     lengths = Counter(len(r["x0"]) for r in members if r["x0"])
     n = lengths.most_common(1)[0][0] if lengths else 0
     names = [f"x{i + 1}" for i in range(n)]
-    b_r = b_rh = np.zeros((0, 2))
+    curves, sim, read = [], {}, False
     for r in members:
-        mcap = Path(r["path"]) / "run.mcap" if r["path"] else None
-        if mcap is None or not mcap.is_file():
+        if not r["path"]:
             continue
-        log = read_log(mcap)
-        logged = (log.one("/model") or {}).get("state_names")
-        if logged and len(logged) == n:
-            names = [str(s) for s in logged]
-        clf = log.one("/clf") or {}
-        b_r = np.asarray(clf.get("boundary_r") or [], float).reshape(-1, 2)
-        b_rh = np.asarray(clf.get("boundary_r_hat") or [], float).reshape(-1, 2)
-        break
-    return n, names, b_r, b_rh
+        mcap, log = Path(r["path"]) / "run.mcap", None
+        if not read and mcap.is_file():
+            log, read = read_log(mcap), True
+            logged = (log.one("/model") or {}).get("state_names")
+            if logged and len(logged) == n:
+                names = [str(s) for s in logged]
+            curves = omega_curves(log.one("/clf") or {})
+        sim = sim or _sim_settings(Path(r["path"]), log)
+        if read and sim:
+            break
+    return n, names, curves, sim
 
 
 def roa_figure(sweep: str | Path, out: str | Path, *, max_groups: int = MAX_GROUPS) -> tuple[Path, dict]:
     """Draw the sweep folder's runs (``kexp.app.aggregate.aggregate``) into the PNG ``out``: one row of panels per
     group, one panel per state pair for n > 2.  Returns (out, facts) with facts = {'groups': [{'label', 'n',
-    'runs', 'successes', 'drawn', 'panels': [panel titles]}], 'failed': [{'job', 'overrides', 'reason'}]}.
+    'runs', 'successes', 'not_settled', 'drawn', 'panels': [panel titles], 'T', 'tol'}], 'failed': [{'job', 'overrides', 'reason'}]}.
 
     Raises :class:`kexp.app.aggregate.ReportError` if the folder holds no runs and :class:`RoaError` (one line,
     listing the groups) if it holds more than ``max_groups`` groups."""
@@ -99,35 +148,35 @@ def roa_figure(sweep: str | Path, out: str | Path, *, max_groups: int = MAX_GROU
     fig, axes = plt.subplots(len(groups), ncols, figsize=(4.6 * ncols, 4.4 * len(groups)), squeeze=False)
     facts: dict = {"groups": [], "failed": [{"job": r["job"], "overrides": r["overrides"], "reason": r["reason"]}
                                             for r in rows if not r["ok"]]}
-    for gi, ((label, members), (n, names, b_r, b_rh), pairs) in enumerate(zip(groups, metas, pair_lists)):
+    for gi, ((label, members), (n, names, curves, sim), pairs) in enumerate(zip(groups, metas, pair_lists)):
         drawable = [r for r in members if r["x0"] and len(r["x0"]) == n and n >= 1]
         successes = sum(bool(r["success"]) for r in members)
         titles = []
         for pi, (i, j) in enumerate(pairs):
             ax = axes[gi, pi]
             for kind, style in KINDS:
-                p = np.array([[r["x0"][i], r["x0"][j] if n > 1 else 0.0] for r in drawable if _kind(r) == kind])
+                p = np.array([[r["x0"][i], r["x0"][j] if n > 1 else 0.0] for r in drawable
+                              if _kind(r, sim.get("tol")) == kind])
                 if p.size:
                     ax.scatter(p[:, 0], p[:, 1], s=30, label=f"{kind} ({len(p)})", **style)
             if n == 2:
-                for b, style, name in ((b_r, "k-", "Ω_r"), (b_rh, "k:", "Ω_r̂")):
-                    if b.size:
-                        b = np.vstack([b, b[:1]])
-                        ax.plot(b[:, 0], b[:, 1], style, lw=1, label=name)
+                for b, hat, name in curves:
+                    ax.plot(b[:, 0], b[:, 1], "k:" if hat else "k-", lw=1, label=name)
             ax.set_xlabel(f"{names[i]}(0)" if n else "x0")
             ax.set_ylabel(f"{names[j]}(0)" if n > 1 else "")
             title = (f"projection onto ({names[i]}, {names[j]}) of {n} states" if n > 2 else
                      "success over initial conditions")
             titles.append(title)
             head = "" if label == "(all)" else (label if len(label) < 60 else label[:57] + "...") + "\n"
-            ax.set_title(f"{head}{title} ({successes}/{len(members)})", fontsize=9)
+            ax.set_title(f"{head}{title} ({successes}/{len(members)})\n{success_rule(sim)}", fontsize=9)
             ax.grid(True, alpha=0.3)
             if ax.get_legend_handles_labels()[0]:
-                ax.legend(fontsize=7)
+                ax.legend(fontsize=7, loc="best", framealpha=0.8)
         for ax in axes[gi, len(pairs):]:
             ax.set_visible(False)
         facts["groups"].append({"label": label, "n": n, "runs": len(members), "successes": successes,
-                                "drawn": len(drawable), "panels": titles})
+                                "not_settled": sum(_kind(r, sim.get("tol")) == NOT_SETTLED for r in members),
+                                "drawn": len(drawable), "panels": titles, "T": sim.get("T"), "tol": sim.get("tol")})
     notes = []
     if any(n > 2 for n, *_ in metas):
         notes.append("n > 2: projections of x0, Ω_r not drawn")
