@@ -10,7 +10,12 @@ the oracle's CSV over the same initial conditions.  One panel per controller:
   (the oracle failed there or did not run that x0);
 - the oracle's success region outlined: the 0.5 level of its success indicator interpolated over the x0
   (a Delaunay triangulation); when the oracle succeeded from every x0 there is no outline and the title says
-  'everywhere'.
+  'oracle succeeds everywhere'.
+
+Ratios below 1 (a controller cheaper than the oracle, within the oracle's solver tolerance) share the bottom colour;
+each panel's title gives the minimum ratio, so the clipping is never silent.  The axes are labelled with the
+system's state names when the file name's system (or the part of it before '-', e.g. ``pendulum`` of
+``pendulum-u0.5``) is a built-in one, else x1, x2.
 
     kexp-figures roa results/regions/vanderpol_lmpc.csv results/regions/vanderpol_lqr.csv \\
         --oracle results/regions/vanderpol_nmpc.csv -o docs/figures/region_vanderpol.png
@@ -52,12 +57,13 @@ def read_results(path: str | Path) -> dict[tuple[float, float], dict]:
 
 def compare(runs: dict, oracle: dict) -> dict:
     """Per controller: successes, where the oracle succeeded and this controller too, and the cost ratios
-    (successful runs on x0 where the oracle succeeded)."""
+    (successful runs on x0 where the oracle succeeded): their minimum, median and worst (maximum)."""
     keys = [k for k in runs if k in oracle]
     o_ok = [k for k in keys if oracle[k]["success"]]
     ratios = np.array([runs[k]["cost"] / oracle[k]["cost"] for k in o_ok if runs[k]["success"]])
     return {"runs": len(runs), "common": len(keys), "successes": sum(r["success"] for r in runs.values()),
             "oracle_successes": len(o_ok), "both": int(sum(runs[k]["success"] for k in o_ok)),
+            "min_ratio": float(np.min(ratios)) if ratios.size else float("nan"),
             "median_ratio": float(np.median(ratios)) if ratios.size else float("nan"),
             "worst_ratio": float(np.max(ratios)) if ratios.size else float("nan")}
 
@@ -68,6 +74,18 @@ def _system(path: Path) -> str:
         return split_name(path)[0]
     except ReportError as exc:
         raise RegionMapError(str(exc)) from None
+
+
+def state_names(system: str) -> tuple[str, str]:
+    """The first two state names of a results CSV's system: the built-in system's (``pendulum-u0.5``: a variant of
+    ``pendulum``, its part before '-'), else ('x1', 'x2') (the CSVs do not record names)."""
+    from ..systems.registry import SYSTEMS, make_system
+    for name in (system, system.split("-", 1)[0]):
+        if name in SYSTEMS:
+            names = make_system(name).state_names
+            if len(names) >= 2:
+                return str(names[0]), str(names[1])
+    return "x1", "x2"
 
 
 def _label(path: Path) -> str:
@@ -95,7 +113,9 @@ def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, v
         panels.append((p, runs, {"label": _label(p), **facts}))
     plt = _plt()
     from matplotlib.tri import Triangulation
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels) + 1.0, 4.9), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels) + 1.0, 5.6), squeeze=False, sharey=True,
+                             layout="constrained")
+    xname, yname = state_names(system)
     pts = np.array(list(ref))
     o_succ = np.array([ref[k]["success"] for k in ref], float)
     try:
@@ -103,7 +123,7 @@ def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, v
     except (RuntimeError, ValueError):   # x0 on one line (qhull: singular input): no region to outline
         tri = None
     sc = None
-    for ax, (p, runs, facts) in zip(axes[0], panels):
+    for pi, (ax, (p, runs, facts)) in enumerate(zip(axes[0], panels)):
         keys = list(runs)
         x = np.array(keys)
         good = [k for k in keys if runs[k]["success"] and k in ref and ref[k]["success"]]
@@ -123,19 +143,21 @@ def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, v
         if tri is not None and 0 < o_succ.sum() < len(o_succ):
             ax.tricontour(tri, o_succ, levels=[0.5], colors="k", linewidths=1.2)
             ax.plot([], [], "k-", lw=1.2, label="oracle's success region")
-        where = "everywhere" if o_succ.all() else "where the oracle succeeds"
-        ax.set_title(f"{facts['label']}: {facts['successes']}/{facts['runs']} succeed\n"
-                     f"{where}: {facts['both']}/{facts['oracle_successes']}\n"
-                     f"J/J_oracle median {facts['median_ratio']:.3f}, worst {facts['worst_ratio']:.3f}", fontsize=8)
-        ax.set_xlabel("x1(0)")
-        ax.set_ylabel("x2(0)")
+        where = (f"oracle succeeds everywhere; this controller: {facts['both']}/{facts['oracle_successes']} there"
+                 if o_succ.all() else f"where the oracle succeeds: {facts['both']}/{facts['oracle_successes']}")
+        ax.set_title(f"{facts['label']}: {facts['successes']}/{facts['runs']} succeed\n{where}\n"
+                     f"J/J_oracle min {facts['min_ratio']:.3f}, median {facts['median_ratio']:.3f}, "
+                     f"worst {facts['worst_ratio']:.3f}", fontsize=8)
+        ax.set_xlabel(f"{xname}(0)")
+        if pi == 0:   # sharey: the first panel's label names the rows of all
+            ax.set_ylabel(f"{yname}(0)")
         ax.set_aspect("equal", adjustable="box")
         if x.size:
             for i, setter in ((0, ax.set_xlim), (1, ax.set_ylim)):
                 pad = 0.05 * (np.ptp(x[:, i]) + 1e-9)
                 setter(x[:, i].min() - pad, x[:, i].max() + pad)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7, loc="best", framealpha=0.6)
+        if ax.get_legend_handles_labels()[0]:   # below the panel: never over the marks or the outline
+            ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncols=2, frameon=False)
     if sc is not None:
         bar = fig.colorbar(sc, ax=axes[0].tolist(), shrink=0.85)
         bar.set_label(f"J / J_oracle (clipped to [1, {vmax:g}])")

@@ -10,6 +10,7 @@ The rows (one per job; a failed or never-started job keeps its row and its ``rea
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import math
 import sys
@@ -114,7 +115,7 @@ def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: 
               "state of the region only, `fails` = neither (full verdicts in report.csv).", "", "## Pictures", ""]
     if pictures:
         titles = {"roa": "Success over the initial conditions (estimate of the region of attraction)",
-                  "cost": "Cost distribution", "solve_time": "Solve-time distribution"}
+                  "cost": "Cost of the successful runs", "solve_time": "Solve-time distribution"}
         for key, name in pictures.items():
             lines += [f"![{titles[key]}]({name})", ""]
     if picture_note:
@@ -122,79 +123,178 @@ def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: 
     path.write_text("\n".join(lines).rstrip() + "\n")
 
 
+NOT_SETTLED = "not settled by T (‖x(T)‖ < 10·tol)"   # the label kexp.analysis.roa gives these runs too
+KINDS = (("success", dict(marker="o", color="tab:green")), (NOT_SETTLED, dict(marker="o", color="tab:orange")),
+         ("failed", dict(marker="o", color="tab:red")), ("diverged", dict(marker="x", color="tab:red")),
+         ("job did not complete", dict(marker="x", color="0.5")))
+EDGE = dict(edgecolor="white", linewidth=1.5)   # histogram bars: adjacent bins of one run each stay apart
+RUG_BELOW = 10                                 # fewer values than this: a rug of the values under the histogram
+
+
+def sim_settings(row: dict) -> tuple[float | None, float | None]:
+    """(T, tol) of a job (``sim.T``, ``sim.tol``: success is ‖x(T) − x_eq‖ < tol) from its .hydra/config.yaml;
+    None where the job folder holds no readable config."""
+    return _sim_settings(row.get("path") or "")
+
+
+@functools.lru_cache(maxsize=None)
+def _sim_settings(path: str) -> tuple[float | None, float | None]:
+    import yaml
+    try:
+        sim = (yaml.safe_load((Path(path) / ".hydra" / "config.yaml").read_text()) or {}).get("sim") or {}
+    except (OSError, ValueError, AttributeError, yaml.YAMLError):
+        return None, None
+    num = (lambda v: float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None)
+    return num(sim.get("T")), num(sim.get("tol"))
+
+
+def _kind(row: dict) -> str:
+    if not row["ok"]:
+        return "diverged" if row["status"] == "diverged" else "job did not complete"
+    if row["success"]:
+        return "success"
+    tol = sim_settings(row)[1]
+    if tol is not None and row["final_error"] is not None and row["final_error"] < 10 * tol:
+        return NOT_SETTLED
+    return "failed"
+
+
+def _state_names(members: list[dict], n: int) -> list[str]:
+    """As kexp.analysis.roa: the state names the group's first log records (/model), else the built-in system's,
+    else x1 … xn."""
+    for r in members:
+        mcap = Path(r["path"]) / "run.mcap" if r.get("path") else None
+        if mcap is None or not mcap.is_file():
+            continue
+        try:
+            from ..recording.reader import read_log
+            logged = (read_log(mcap).one("/model") or {}).get("state_names")
+        except Exception:   # a damaged log: the names are a label, the report still gets written
+            logged = None
+        if logged and len(logged) == n:
+            return [str(x) for x in logged]
+        break
+    from ..systems.registry import SYSTEMS, make_system
+    systems = {r["system"] for r in members if r.get("system")}
+    if len(systems) == 1 and (name := systems.pop()) in SYSTEMS:
+        names = make_system(name).state_names
+        if len(names) == n:
+            return [str(x) for x in names]
+    return [f"x{i + 1}" for i in range(n)]
+
+
+def _joined(values) -> str:
+    return " / ".join(format(v, "g") for v in sorted(set(values)))
+
+
+def success_rule(members: list[dict]) -> str:
+    """'success: ‖x(T) − x_eq‖ < 0.01 at T = 5 s' from the runs' configs (several values: joined with '/')."""
+    settings = [sim_settings(r) for r in members]
+    tols = [tol for _, tol in settings if tol is not None]
+    ts = [t for t, _ in settings if t is not None]
+    return (f"success: ‖x(T) − x_eq‖ < {_joined(tols) if tols else 'sim.tol'} at "
+            + (f"T = {_joined(ts)} s" if ts else "the end T of the run"))
+
+
+def _group_title(label: str, members: list[dict]) -> str:
+    """What a group is: its system and controller, and its overrides apart from sim.x0 (or 'all N runs')."""
+    what = ", ".join(x for key in ("system", "controller")
+                     for x in dict.fromkeys(r[key] for r in members if r.get(key)))
+    which = f"all {len(members)} runs of the sweep" if label == "(all)" else \
+        (label if len(label) < 60 else label[:57] + "...")
+    return f"{what}: {which}" if what else which
+
+
+def _roa_picture(rows: list[dict], labels: list[str], by_group: dict, out_dir: Path) -> bool:
+    from matplotlib.figure import Figure  # no pyplot: no global state, no GUI backend
+
+    with_x0 = [lab for lab in labels if any(r["x0"] for r in by_group[lab])]
+    if not with_x0:
+        return False
+    shown = with_x0[:12]
+    ncols = min(len(shown), 3)
+    nrows = math.ceil(len(shown) / ncols)
+    fig = Figure(figsize=(4.8 * ncols, 4.6 * nrows), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for ax, lab in zip(axes, shown):
+        members = by_group[lab]
+        n = max(len(r["x0"]) for r in members if r["x0"])
+        names = _state_names(members, n)
+        for name, style in KINDS:
+            pts = [(r["x0"][0], r["x0"][1] if len(r["x0"]) > 1 else 0.0)
+                   for r in members if r["x0"] and _kind(r) == name]
+            if pts:
+                ax.scatter(*zip(*pts), label=f"{name} ({len(pts)})", s=36, **style)
+        note = f"\nprojection onto ({names[0]}, {names[1]}) of {n} states" if n > 2 else ""  # not the whole x0
+        ax.set_title(f"{_group_title(lab, members)}{note}\n{success_rule(members)}", fontsize=9)
+        ax.set_xlabel(f"{names[0]}(0)")
+        ax.set_ylabel(f"{names[1]}(0)" if n > 1 else "")
+        ax.grid(True, alpha=0.3)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend(fontsize=8)
+    for ax in axes[len(shown):]:
+        ax.set_visible(False)
+    fig.suptitle(f"success over the initial conditions: {len(rows)} runs" +
+                 (f" (first {len(shown)} of {len(with_x0)} groups)" if len(with_x0) > len(shown) else ""))
+    fig.savefig(out_dir / PICTURES["roa"], dpi=100)
+    return True
+
+
+def _hist(ax, values: dict[str, list[float]], title: str, xlabel: str) -> bool:
+    """One histogram per group (white bar edges) and, for fewer than RUG_BELOW values, a rug of the values."""
+    import numpy as np
+    from matplotlib.ticker import MaxNLocator
+    every = [v for vs in values.values() for v in vs]
+    if not every:
+        return False
+    bins = np.histogram_bin_edges(every, bins=min(30, max(5, len(every) // 2)))
+    for i, (lab, v) in enumerate((lab, v) for lab, v in values.items() if v):
+        color = f"C{i}"
+        ax.hist(v, bins=bins, alpha=0.6 if len(values) > 1 else 0.9, label=lab[:40], color=color, **EDGE)
+        if len(every) < RUG_BELOW:
+            ax.plot(v, [0.04] * len(v), "|", color="k" if len(values) == 1 else color, ms=12, mew=1.2,
+                    transform=ax.get_xaxis_transform())   # x in data, y a little above the axis
+    ax.set_title(title)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("runs")
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    if len(values) > 1:
+        ax.legend(fontsize=7)
+    return True
+
+
 def write_pictures(rows: list[dict], groups: list[dict], out_dir: Path) -> dict[str, str]:
-    """roa.png, cost_hist.png, solve_time_hist.png; raises ImportError when matplotlib is missing."""
+    """roa.png, cost_hist.png (successful runs only), solve_time_hist.png; raises ImportError when matplotlib is
+    missing."""
     from matplotlib.figure import Figure  # no pyplot: no global state, no GUI backend
 
     written: dict[str, str] = {}
     labels = [g["group"] for g in groups]
     by_group = {lab: [r for r in rows if r.get("group", "(all)") == lab] for lab in labels}
-    with_x0 = [lab for lab in labels if any(r["x0"] for r in by_group[lab])]
-    if with_x0:
-        shown = with_x0[:12]
-        ncols = min(len(shown), 3)
-        nrows = math.ceil(len(shown) / ncols)
-        fig = Figure(figsize=(4.2 * ncols, 4.0 * nrows), layout="constrained")
-        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
-        kinds = [("success", dict(marker="o", color="tab:green")), ("no success", dict(marker="o", color="tab:red")),
-                 ("diverged", dict(marker="x", color="tab:red")), ("failed job", dict(marker="x", color="0.5"))]
-        for ax, lab in zip(axes, shown):
-            for name, style in kinds:
-                pts = []
-                for r in by_group[lab]:
-                    if not r["x0"]:
-                        continue
-                    kind = ("success" if r["success"] else "no success") if r["ok"] else \
-                        ("diverged" if r["status"] == "diverged" else "failed job")
-                    if kind == name:
-                        pts.append((r["x0"][0], r["x0"][1] if len(r["x0"]) > 1 else 0.0))
-                if pts:
-                    ax.scatter(*zip(*pts), label=name, s=36, **style)
-            n = max(len(r["x0"]) for r in by_group[lab] if r["x0"])
-            note = f"\nprojection onto (x1, x2) of {n} states" if n > 2 else ""  # say so: not the whole x0
-            ax.set_title((lab if len(lab) < 60 else lab[:57] + "...") + note, fontsize=9)
-            ax.set_xlabel("x1(0)")
-            ax.set_ylabel("x2(0)")
-            ax.grid(True, alpha=0.3)
-            ax.set_aspect("equal", adjustable="datalim")
-            ax.legend(fontsize=8)
-        for ax in axes[len(shown):]:
-            ax.set_visible(False)
-        fig.suptitle("success over the initial conditions" +
-                     (f" (first {len(shown)} of {len(with_x0)} groups)" if len(with_x0) > len(shown) else ""))
-        fig.savefig(out_dir / PICTURES["roa"], dpi=100)
+    if _roa_picture(rows, labels, by_group, out_dir):
         written["roa"] = PICTURES["roa"]
 
-    def hist(ax, key, title, xlabel):
-        import numpy as np
-        values = {lab: [r[key] for r in by_group[lab] if r[key] is not None and math.isfinite(r[key])]
-                  for lab in labels[:8]}
-        every = [v for vs in values.values() for v in vs]
-        if not every:
-            return False
-        bins = np.histogram_bin_edges(every, bins=min(30, max(5, len(every) // 2)))
-        drawn = False
-        for lab, v in values.items():
-            if v:
-                ax.hist(v, bins=bins, alpha=0.6 if len(labels) > 1 else 0.9, label=lab[:40])
-                drawn = True
-        ax.set_title(title)
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("runs")
-        from matplotlib.ticker import MaxNLocator
-        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
-        if drawn and len(labels) > 1:
-            ax.legend(fontsize=7)
-        return drawn
+    def values(key, keep=lambda r: True):
+        return {lab: [r[key] for r in by_group[lab] if keep(r) and r[key] is not None and math.isfinite(r[key])]
+                for lab in labels[:8]}
 
+    # cost: a failed run's J (cut at T, or of a run that left) is not comparable with a successful one's
     fig = Figure(figsize=(6, 4), layout="constrained")
-    if hist(fig.subplots(), "cost", "cost J per run", "J"):
-        fig.savefig(out_dir / PICTURES["cost"], dpi=100)
-        written["cost"] = PICTURES["cost"]
+    ax = fig.subplots()
+    cost = values("cost", lambda r: bool(r["success"]))
+    k = sum(map(len, cost.values()))
+    if not _hist(ax, cost, f"cost J of the {k} successful runs (of {len(rows)})", "J"):
+        ax.set_axis_off()
+        ax.set_title(f"cost J of the 0 successful runs (of {len(rows)})")
+        ax.text(0.5, 0.5, f"no run succeeded (0 of {len(rows)}):\nno cost to compare\n{success_rule(rows)}",
+                ha="center", va="center", transform=ax.transAxes)
+    fig.savefig(out_dir / PICTURES["cost"], dpi=100)
+    written["cost"] = PICTURES["cost"]
     fig = Figure(figsize=(10, 4), layout="constrained")
     a, b = fig.subplots(1, 2)
-    if hist(a, "solve_median_ms", "median solve time per run", "ms") | hist(b, "solve_p99_ms", "p99 solve time per run",
-                                                                             "ms"):
+    med, p99 = values("solve_median_ms"), values("solve_p99_ms")
+    if _hist(a, med, f"median solve time per run ({sum(map(len, med.values()))} runs)", "ms") | \
+            _hist(b, p99, f"p99 solve time per run ({sum(map(len, p99.values()))} runs)", "ms"):
         fig.savefig(out_dir / PICTURES["solve_time"], dpi=100)
         written["solve_time"] = PICTURES["solve_time"]
     return written
