@@ -1,7 +1,6 @@
 """What kexp-report's pictures and the region map (kexp-figures roa CSVs --oracle) say: axis labels, titles,
 legends and bar edges of the matplotlib Figures (captured at savefig), not their pixels.  Inputs are fake sweep
 folders and results CSVs, written in a few milliseconds (no kexp runs)."""
-import csv
 import json
 
 import numpy as np
@@ -15,7 +14,8 @@ from matplotlib.patches import Rectangle  # noqa: E402
 
 from kexp.analysis.region_map import compare, read_results, region_map  # noqa: E402
 from kexp.app import report as rep  # noqa: E402
-from kexp.app.results import COLUMNS  # noqa: E402
+
+from test_region_map import _write  # noqa: E402
 
 
 @pytest.fixture
@@ -110,15 +110,7 @@ def test_report_histogram_bars_have_white_edges(sweep, tmp_path, saved):
     assert len(rug) == 1 and len(rug[0].get_xdata()) == 4
 
 
-def _csv(path, x0s, success, cost):
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(COLUMNS)
-        for (a, b), s, c in zip(x0s, success, cost):
-            row = {k: "" for k in COLUMNS}
-            row.update(x0_1=repr(a), x0_2=repr(b), status="completed", success=str(bool(s)), cost=repr(c))
-            w.writerow([row[k] for k in COLUMNS])
-    return path
+_csv = _write   # the region map tests' writer of results CSVs
 
 
 @pytest.fixture
