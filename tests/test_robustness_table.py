@@ -164,3 +164,15 @@ def test_region_map_rows_add_300_x0_and_merge_them_with_the_rows_100(tmp_path):
     _, no_collect = _stubbed_results(tmp_path / "again")
     assert subprocess.run(script, env=no_collect, capture_output=True, text=True).returncode == 0
     assert not stale.exists() and not merged.exists()
+
+
+def test_a_configuration_that_is_no_controller_kind_is_no_row(tmp_path):
+    """pendulum_paper-lmpc.csv collected in today's columns says controller lmpc, as pendulum_lmpc.csv does: the
+    file name's configuration (paper-lmpc: the paper's preset) keeps it out of the table instead of a refusal as
+    a duplicate."""
+    import shutil
+    for name in ("pendulum_lmpc.csv", "pendulum_paper-lmpc.csv"):
+        shutil.copyfile(RESULTS / "pendulum_lmpc.csv", tmp_path / name)
+    rows = load(sorted(tmp_path.glob("*.csv")))
+    assert [key[:2] for key in rows] == [("pendulum", "lmpc")]
+    assert next(iter(rows.values()))[0] == "pendulum_lmpc.csv"

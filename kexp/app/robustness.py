@@ -25,7 +25,11 @@ def _f(v) -> float:
 
 
 def _conditions(name: str, row: dict) -> tuple:
-    controller = row.get("controller") or name.partition("_")[2].split("-")[0]
+    """The run's conditions; its configuration is the file name's (<system>_<configuration>): one that does not
+    start with a controller kind (e.g. paper-lmpc, the paper's preset) is no row of this table, whatever
+    controller its runs used (a paper-lmpc CSV in today's columns says controller lmpc, as the working preset's)."""
+    configured = name.partition("_")[2].split("-")[0]
+    controller = configured if configured not in KINDS else (row.get("controller") or configured)
     controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
     return (controller, row.get("inputs") or "projection", round(_f(row.get("sim_noise") or 0.0), 6),
             row.get("smoothing") or "none", row.get("mismatch") or "")
