@@ -10,14 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, is_number
 
 MAX_FUNCTIONS = 5000
-
-
-def _is_int(value) -> bool:
-    """An int or numpy integer, not a bool (True would pass for 1)."""
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def monomial_exponents(n: int, degree: int, *, include_constant: bool = True,
@@ -52,15 +47,15 @@ class Monomials:
     exponents: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        if not (_is_int(self.n) and self.n >= 1):
+        if not (is_number(self.n, integer=True) and self.n >= 1):
             raise ConfigError(f"dictionary.n={self.n!r}: the state dimension must be an int >= 1")
-        if not (_is_int(self.degree) and self.degree >= 1):
+        if not (is_number(self.degree, integer=True) and self.degree >= 1):
             raise ConfigError(f"dictionary.degree={self.degree!r}: use an int >= 1")
         if not isinstance(self.include_constant, (bool, np.bool_)):
             raise ConfigError(f"dictionary.include_constant={self.include_constant!r}: use true or false")
         if self.weights is not None:
             w = self.weights
-            if isinstance(w, (str, bytes)) or not np.iterable(w) or not all(_is_int(v) for v in w):
+            if isinstance(w, (str, bytes)) or not np.iterable(w) or not all(is_number(v, integer=True) for v in w):
                 raise ConfigError(f"dictionary.weights={w!r}: give {self.n} ints >= 1, or null")
             w = tuple(int(v) for v in w)
             if len(w) != self.n or min(w) < 1:

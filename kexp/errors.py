@@ -26,12 +26,36 @@ class ModelFileError(KexpError, OSError):
     """A model file is missing, corrupt, or from another format version."""
 
 
+def is_number(value, *, integer: bool = False) -> bool:
+    """A real number (an integer if ``integer``): int, float or a numpy scalar; bools are not numbers (True would
+    pass for 1).  The one test behind every check of a numeric setting."""
+    import numbers
+    return isinstance(value, numbers.Integral if integer else numbers.Real) and not isinstance(value, bool)
+
+
 def require_number(value, key: str, *, integer: bool = False) -> None:
     """Raise a ConfigError unless ``value`` is a real number (an int if ``integer``); bools are not numbers."""
-    import numbers
-    ok = isinstance(value, numbers.Integral if integer else numbers.Real) and not isinstance(value, bool)
-    if not ok:
+    if not is_number(value, integer=integer):
         raise ConfigError(f"{key}={value!r}: expected {'an integer' if integer else 'a number'}")
+
+
+STEP_TOLERANCE = 1e-9  # relative: a duration must be a whole number of time steps within this
+
+
+def require_whole_steps(T: float, dt: float, t_key: str, dt_key: str, *, whole: bool = True) -> int:
+    """The number of ``dt`` steps in ``T``; a ConfigError naming the nearest valid T when T is not a whole number
+    of steps (relative tolerance :data:`STEP_TOLERANCE`: T was rounded silently before; unless ``whole`` is
+    False) or T/dt is not finite."""
+    import math
+    steps = T / dt
+    if not math.isfinite(steps):
+        raise ConfigError(f"{t_key}={T}, {dt_key}={dt}: T/dt is not a finite number of steps; use a larger dt or a "
+                          "shorter T")
+    k = max(1, round(steps))
+    if whole and abs(k * dt - T) > STEP_TOLERANCE * T:
+        raise ConfigError(f"{t_key}={T}: not a whole number of {dt_key}={dt} steps (T/dt = {steps:.9g}); use "
+                          f"{t_key}={k * dt:.12g} ({k} steps)")
+    return k
 
 
 def require_seed(value, key: str) -> None:

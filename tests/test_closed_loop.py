@@ -143,7 +143,7 @@ def test_parts_that_do_not_fit_are_refused_before_the_first_step(vdp_parts):
 
 
 @pytest.mark.parametrize("kwargs,fragment", [
-    ({"T": 0.015}, "sim.T=0.015 is not a whole number of steps of dt=0.01; use e.g. sim.T=0.02"),
+    ({"T": 0.015}, "sim.T=0.015: not a whole number of sim.dt=0.01 steps (T/dt = 1.5); use sim.T=0.02 (2 steps)"),
     ({"tol": float("inf")}, "sim.tol=inf: use a finite number > 0"),
     ({"noise": None}, "sim.noise=None: expected a NoiseConfig"),
     ({"integrator": None}, "sim.integrator=None: expected a IntegratorOptions"),

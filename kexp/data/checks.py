@@ -2,13 +2,12 @@
 :class:`~kexp.errors.ConfigError` naming the key, the value and what is valid."""
 from __future__ import annotations
 
-import numbers
 from collections.abc import Sequence
 from os import PathLike
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, is_number
 
 
 def short(value, limit: int = 80) -> str:
@@ -17,9 +16,7 @@ def short(value, limit: int = 80) -> str:
     return r if len(r) <= limit else r[:limit - 3] + "..."
 
 
-def is_real(value) -> bool:
-    """A real number (int, float, numpy scalar); bools are not numbers."""
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+is_real = is_number   # a real number (int, float, numpy scalar); bools are not numbers (kexp.errors)
 
 
 def items(value, *, allow_none: bool = False) -> list | None:

@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError, DataError, require_number, require_seed
+from ..errors import ConfigError, DataError, require_number, require_seed, require_whole_steps
 from ..systems.base import ControlAffineSystem
 from .checks import items, require_type, short
 from .dataset import PAIR_RULES, DataReport, Dataset
@@ -90,9 +90,6 @@ def _filter_bounds(value, key: str) -> list | None:
     return entries
 
 
-STEP_TOLERANCE = 1e-9  # relative: data.T must be a whole number of data.dt within this
-
-
 @dataclass(frozen=True)
 class DataConfig:
     """Settings of data collection (validated here): duration ``T`` seconds at sampling ``dt``, T a whole number
@@ -124,14 +121,8 @@ class DataConfig:
         require_type(self.filter, RegionFilter, "data.filter", " (RegionFilter(): no filter)")
         require_type(self.integrator, IntegratorOptions, "data.integrator", " (IntegratorOptions(): the defaults)")
         require_type(self.source, DataSource, "data.source", " (DataSource(): simulate)")
-        steps = self.T / self.dt
-        if not np.isfinite(steps):
-            raise ConfigError(f"data.T={self.T}, data.dt={self.dt}: T/dt is not a finite number of steps; use a "
-                              "larger dt or a shorter T")
-        k = round(steps)
-        if self.source.kind == "simulate" and abs(k * self.dt - self.T) > STEP_TOLERANCE * self.T:
-            raise ConfigError(f"data.T={self.T}: not a whole number of data.dt={self.dt} steps (T/dt = {steps:.9g});"
-                              f" use data.T={k * self.dt:.12g} ({k} steps)")
+        # recorded runs: T does not apply, but T/dt must still be finite
+        require_whole_steps(self.T, self.dt, "data.T", "data.dt", whole=self.source.kind == "simulate")
         if self.excitation is not None:
             self.excitation.check(self.dt)
         if self.source.kind == "files" and self.excitation is not None:

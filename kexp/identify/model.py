@@ -8,7 +8,6 @@ Saved as one ``.npz`` holding arrays plus a JSON ``meta`` string (no pickle), wi
 from __future__ import annotations
 
 import json
-import numbers
 import os
 import zipfile
 from dataclasses import dataclass, field
@@ -18,7 +17,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..dictionary import Monomials
-from ..errors import ConfigError, ModelFileError
+from ..errors import ConfigError, ModelFileError, is_number
 
 FORMAT = "kexp-koopman-bilinear"
 FORMAT_VERSION = 1
@@ -83,7 +82,7 @@ class KoopmanBilinearModel:
         if not isinstance(self.state_names, (tuple, list)) or len(self.state_names) != n:
             raise ConfigError(f"inconsistent model: state_names={self.state_names!r:.80}; want {n} names")
         dt = self.dt
-        if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, numbers.Real) or not 0 < dt < np.inf:
+        if not (is_number(dt) and 0 < dt < np.inf):
             raise ConfigError(f"model dt={dt!r}: the sampling time must be a finite number > 0 seconds")
 
     def __eq__(self, other) -> bool:
@@ -182,7 +181,7 @@ class KoopmanBilinearModel:
 
     def free_response(self, z0: np.ndarray, steps: int) -> np.ndarray:
         """Unforced model response z(jΔ) = exp(ΛjΔ) z0 for j = 0..steps; z0 (M, k) -> (steps+1, M, k)."""
-        if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, numbers.Integral) or steps < 0:
+        if not (is_number(steps, integer=True) and steps >= 0):
             raise ConfigError(f"free_response: steps={steps!r}; use an int >= 0")
         if np.shape(z0)[-1:] != (self.k,):
             raise ConfigError(f"free_response: z0 must have shape (M, {self.k}) or ({self.k},), got {np.shape(z0)}")
@@ -232,7 +231,7 @@ class KoopmanBilinearModel:
                                  f"{FORMAT_VERSION}: re-run identification to recreate it")
         try:
             dt = meta["dt"]
-            if isinstance(dt, bool) or not isinstance(dt, (int, float)):
+            if not is_number(dt):
                 raise ConfigError(f"dt={dt!r} is not a number")
             if not (isinstance(meta["system"], str) and isinstance(meta["report"], dict)):
                 raise ConfigError("system must be a string and report a mapping")

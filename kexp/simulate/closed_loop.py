@@ -17,7 +17,7 @@ import numpy as np
 
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
 from ..data.noise import NoiseConfig, _check_std, _std_active, _std_vector
-from ..errors import ConfigError, require_number, require_seed
+from ..errors import ConfigError, require_number, require_seed, require_whole_steps
 from .stepper import HeldInputStepper
 
 
@@ -72,10 +72,7 @@ class SimConfig:
             raise ConfigError(f"sim: need 0 < dt <= T < inf, got dt={self.dt}, T={self.T}")
         if not 0 < self.tol < math.inf:
             raise ConfigError(f"sim.tol={self.tol}: use a finite number > 0")
-        steps = self.T / self.dt
-        if abs(steps - round(steps)) > 1e-9 * max(1.0, steps):   # was rounded silently: T=0.015 ran to 0.02
-            raise ConfigError(f"sim.T={self.T} is not a whole number of steps of dt={self.dt}; use e.g. "
-                              f"sim.T={max(1, round(steps)) * self.dt:g}")
+        require_whole_steps(self.T, self.dt, "sim.T", "sim.dt")   # was rounded silently: T=0.015 ran to 0.02
         for key, kind in (("integrator", IntegratorOptions), ("noise", NoiseConfig), ("disturbance", Disturbance)):
             if not isinstance(getattr(self, key), kind):
                 raise ConfigError(f"sim.{key}={getattr(self, key)!r}: expected a {kind.__name__}")

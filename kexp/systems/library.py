@@ -2,13 +2,12 @@
 invariant subspaces, and a Duffing oscillator.  All vectorised over leading axes of ``x`` (..., n)."""
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
-from ..errors import SystemDefinitionError
+from ..errors import SystemDefinitionError, is_number
 from .base import ControlAffineSystem
 
 
@@ -17,8 +16,7 @@ def _require_finite(system, *keys: str) -> None:
     (not a bool): a NaN parameter would otherwise reach the integrator, which does not stop on NaN."""
     for key in keys:
         value = getattr(system, key)
-        ok = isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
-        if not (ok and np.isfinite(value)):
+        if not (is_number(value) and np.isfinite(value)):
             raise SystemDefinitionError(f"system {system.name!r}: {key}={value!r}; use a finite number "
                                         f"(system.params.{key})")
 
