@@ -350,10 +350,8 @@ def build_logging(cfg: Mapping[str, Any]) -> dict:
         if key not in defaults:
             raise ConfigError(f"logging.{key}: unknown key; valid keys: {sorted(defaults)}")
     out = {**defaults, **cfg}
-    if not (isinstance(out["prediction_every"], int) and out["prediction_every"] >= 0):
-        raise ConfigError(f"logging.prediction_every={out['prediction_every']}: use an int >= 0 (0: never)")
-    if not 0 < out["flush_every"] < float("inf"):   # inf would never flush: a killed run would lose its log
-        raise ConfigError(f"logging.flush_every={out['flush_every']}: use seconds > 0 (finite)")
+    from ..recording.writer import check_settings
+    check_settings(out["flush_every"], out["prediction_every"])   # the loggers' own check, before anything runs
     if out["progress"] not in ("auto", True, False):
         raise ConfigError(f"logging.progress={out['progress']!r}; valid: auto, true, false")
     if out["writer"] not in ("sync", "process"):

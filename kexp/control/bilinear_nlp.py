@@ -3,7 +3,7 @@
 (``name``, ``reset()``, ``step(x0, z0) -> ControlStep``).  It solves the SAME problem as :class:`Lmpc` (paper eq. 21
 on the bilinear Koopman model: same cost incl. ``state_cost`` 'z'/'x' and ``terminal``, same move blocking, same slack
 penalty ρ(s + s²), the same (21e)/(21f) switching by region, the same input bounds) as a multiple-shooting NLP, to
-check kexp's SQP.  The IPOPT plumbing here (:func:`_casadi`, :func:`_bounds`, :func:`_ipopt_options`, :func:`_solve`)
+check kexp's SQP.  The IPOPT plumbing here (:func:`_casadi`, :func:`_ipopt_options`, :func:`_solve`)
 and :func:`rk4_step` are also used by the true-model oracle, :class:`~kexp.control.oracle.NmpcOracle`.
 
 Discretisation of the bilinear model.  ``discretisation='exact'``: for the held input u the model is
@@ -58,9 +58,6 @@ def _casadi():
         raise ConfigError("the IPOPT oracle controllers need casadi, which is not installed: pip install casadi "
                           "(or the extra: pip install 'kexp[oracle]')") from None
     return casadi
-
-
-_bounds = input_bounds   # the controllers' one check of u_min, u_max (kexp.control.checks)
 
 
 def _ipopt_options(tol: float, max_iter: int, extra: dict | None) -> dict:
@@ -177,7 +174,7 @@ def polynomial_terms(C: np.ndarray, umax: float, trunc: float = 1e-18) -> int:
 def _step_order(model, u_min, u_max, substeps):
     """(q, p) of the exact step for the input box (module docstring)."""
     lam, B, b, m = np.asarray(model.Lambda), np.asarray(model.B), np.asarray(model.b), model.m
-    lo, hi = _bounds(u_min, u_max, m)
+    lo, hi = input_bounds(u_min, u_max, m)
     umax = np.maximum(np.abs(lo), np.abs(hi))
     rows = np.abs(lam).sum(axis=1) + sum(umax[i] * (np.abs(B[i]).sum(axis=1) + np.abs(b[i])) for i in range(m))
     q, p = taylor_terms(float(rows.max()) * float(model.dt))

@@ -23,7 +23,8 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import ConfigError
-from .bilinear_nlp import _bounds, _casadi, _ipopt_options, _solve, rk4_step
+from .bilinear_nlp import _casadi, _ipopt_options, _solve, rk4_step
+from .checks import input_bounds
 from .blocking import block_of_step, block_sizes
 from .explicit import linearise
 from .lmpc import ControlStep, region_of
@@ -130,7 +131,7 @@ class NmpcOracle:
         self.record_prediction = record_prediction
         self.n, self.m = system.n, system.m
         self.N, self.dt = int(horizon_steps), float(dt)
-        self.u_min, self.u_max = _bounds(u_min, u_max, self.m)
+        self.u_min, self.u_max = input_bounds(u_min, u_max, self.m)
         self.x_eq = np.asarray(system.equilibrium, float)
         free = getattr(config, "free_moves", None) if config is not None else None
         blocks = getattr(config, "blocks", None) if config is not None else None
