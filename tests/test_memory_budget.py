@@ -90,10 +90,11 @@ def test_the_run_size_estimates_bound_what_a_short_run_holds(tmp_path):
 
     import numpy as np
 
-    from kexp.app.budget import check_run_size, data_bytes, loop_bytes
+    from kexp.app.budget import check_run_size, loop_bytes
     from kexp.clf import ClfConfig, synthesize_clf
     from kexp.control import Lmpc, make_law
     from kexp.data import Circle, DataConfig, collect
+    from kexp.data.collect import data_bytes
     from kexp.dictionary import Monomials
     from kexp.identify import identify
     from kexp.recording.reader import read_log

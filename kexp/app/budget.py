@@ -1,21 +1,17 @@
 """The run's size against the memory budget, before anything long starts: the data to collect and the closed
-loop to run (a ``sim.T=1e9`` used to identify the model first and then fail allocating 745 GiB).
+loop to run (a ``sim.T=1e9`` used to identify the model first and then fail allocating 745 GiB).  The data's
+estimate is collect's own (:func:`kexp.data.collect.check_data_size`).
 
-Per sample and per control step, measured with tracemalloc (Van der Pol, k = 20; tests/test_memory_budget.py keeps
-the estimates above what a short run holds): the collected data ~37 bytes per sample at its peak (n = 2, m = 1),
-estimated as 8·(2n + m + 2); the closed loop ~2.6 kB per step at its peak (its StepRecord with x, z, u, the
+Per control step, measured with tracemalloc (Van der Pol, k = 20; tests/test_memory_budget.py keeps the estimates
+above what a short run holds): the closed loop ~2.6 kB per step at its peak (its StepRecord with x, z, u, the
 trajectory, the log's records) and ~6 kB once the log is read back for the rendering, estimated as
 3·(2500 + 8·(k + 4n + 2m)) (8.2 kB there).
 """
 from __future__ import annotations
 
 from ..control.memory import memory_budget
+from ..data.collect import check_data_size
 from ..errors import ConfigError
-
-
-def data_bytes(n_traj: int, n_steps: int, n: int, m: int) -> float:
-    """Bytes the collected data holds at its peak: ``n_traj`` trajectories of ``n_steps`` + 1 samples."""
-    return 8.0 * n_traj * (n_steps + 1) * (2 * n + m + 2)
 
 
 def loop_bytes(n_steps: int, n: int, m: int, k: int) -> float:
@@ -27,15 +23,9 @@ def loop_bytes(n_steps: int, n: int, m: int, k: int) -> float:
 def check_run_size(sim_cfg, system, k: int, sampler=None, data_cfg=None) -> None:
     """Refuse a closed loop (``sim_cfg``: T, dt) or simulated data (``sampler``'s trajectories of ``data_cfg.T``)
     that would need more than the memory budget (``$KEXP_MEMORY_BUDGET_GB``), with what to change."""
-    budget = memory_budget()
     if sampler is not None and data_cfg is not None:
-        need = data_bytes(sampler.n_traj, data_cfg.n_steps, system.n, system.m)
-        if need > budget:
-            raise ConfigError(
-                f"data: {sampler.n_traj} trajectories of data.T={data_cfg.T:g} s at Δ = {data_cfg.dt:g} s are "
-                f"{sampler.n_traj * (data_cfg.n_steps + 1):.3g} samples, about {need / 1e9:.3g} GB, over the budget "
-                f"of {budget / 1e9:.3g} GB (KEXP_MEMORY_BUDGET_GB): shorten data.T, use fewer trajectories, or "
-                "raise the budget")
+        check_data_size(sampler.n_traj, data_cfg, system, "data")   # collect's own check, before the cache
+    budget = memory_budget()
     need = loop_bytes(sim_cfg.n_steps, system.n, system.m, k)
     if need > budget:
         raise ConfigError(

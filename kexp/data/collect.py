@@ -182,10 +182,22 @@ def _check_collect(system, sampler, config) -> None:
                           f"{config.source.path!r}): read recorded runs with kexp.data.read_runs or open_runs")
     n_traj = getattr(sampler, "n_traj", None)
     if isinstance(n_traj, (int, np.integer)):
-        from ..control.memory import memory_budget
-        need, budget = 8.0 * n_traj * (config.n_steps + 1) * system.n, memory_budget()
-        if need > budget:
-            raise ConfigError(f"collect: {n_traj} trajectories of {config.n_steps + 1} samples (data.T={config.T:g}"
-                              f" s at dt={config.dt:g} s) are {need / 1e9:.3g} GB of states, over the budget of "
-                              f"{budget / 1e9:.3g} GB (KEXP_MEMORY_BUDGET_GB): use fewer trajectories or a shorter "
-                              "data.T")
+        check_data_size(n_traj, config, system, "collect")
+
+
+def data_bytes(n_traj: int, n_steps: int, n: int, m: int) -> float:
+    """Bytes the collected data holds at its peak: ``n_traj`` trajectories of ``n_steps`` + 1 samples of n states
+    and m inputs, 8·(2n + m + 2) per sample (measured ~37 for n = 2, m = 1; tests/test_memory_budget.py)."""
+    return 8.0 * n_traj * (n_steps + 1) * (2 * n + m + 2)
+
+
+def check_data_size(n_traj: int, config: DataConfig, system, where: str) -> None:
+    """Refuse data over the memory budget ($KEXP_MEMORY_BUDGET_GB), before any sample is drawn: ``collect`` and
+    the app (kexp.app.budget) call it."""
+    from ..control.memory import memory_budget
+    need, budget = data_bytes(n_traj, config.n_steps, system.n, system.m), memory_budget()
+    if need > budget:
+        raise ConfigError(f"{where}: {n_traj} trajectories of data.T={config.T:g} s at Δ = {config.dt:g} s are "
+                          f"{n_traj * (config.n_steps + 1):.3g} samples, about {need / 1e9:.3g} GB, over the budget "
+                          f"of {budget / 1e9:.3g} GB (KEXP_MEMORY_BUDGET_GB): shorten data.T, use fewer "
+                          "trajectories, or raise the budget")
