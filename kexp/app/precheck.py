@@ -81,18 +81,11 @@ def _compose_or_exit(overrides: list[str]) -> None:
     """Compose the config with ``overrides`` (a single run); a preset or group file that is not YAML or any other
     composition error is one line on stderr and exit code 2."""
     from hydra import compose, initialize_config_dir
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-    from yaml import YAMLError
-    try:
+
+    def compose_it():
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
             compose(config_name="config", overrides=overrides)
-    except YAMLError as exc:  # a preset or group file that is not YAML
-        print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
-        sys.exit(2)
-    except (HydraException, OmegaConfBaseException, ValueError) as exc:
-        print(f"kexp: error: {composition_error_line(exc)}", file=sys.stderr)
-        sys.exit(2)
+    _one_line_or_exit(compose_it)
 
 
 def _compose_master_or_exit(overrides: list[str]) -> None:
@@ -104,19 +97,26 @@ def _compose_master_or_exit(overrides: list[str]) -> None:
     from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra._internal.utils import create_config_search_path
     from hydra.core.utils import JobRuntime
-    from hydra.errors import HydraException
     from hydra.types import RunMode
-    from omegaconf.errors import OmegaConfBaseException
-    from yaml import YAMLError
     JobRuntime.instance().set("name", "kexp")
     loader = ConfigLoaderImpl(config_search_path=create_config_search_path(CONF_DIR))
+    _one_line_or_exit(lambda: loader.load_configuration("config", overrides=overrides, run_mode=RunMode.MULTIRUN),
+                      " (no job started)")
+
+
+def _one_line_or_exit(compose_it, suffix: str = "") -> None:
+    """Run ``compose_it``; a config file that is not YAML, or a composition error, is one line on stderr (with
+    ``suffix``; a YAML error names the file and where) and exit code 2."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+    from yaml import YAMLError
     try:
-        loader.load_configuration("config", overrides=overrides, run_mode=RunMode.MULTIRUN)
-    except YAMLError as exc:
+        compose_it()
+    except YAMLError as exc:  # a preset or group file that is not YAML
         print(f"kexp: error: {yaml_error_line(exc)}", file=sys.stderr)
         sys.exit(2)
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
-        print(f"kexp: error: {composition_error_line(exc)} (no job started)", file=sys.stderr)
+        print(f"kexp: error: {composition_error_line(exc)}{suffix}", file=sys.stderr)
         sys.exit(2)
 
 
