@@ -27,11 +27,14 @@ def model(vdp_data):
     return identify(VanDerPol(), vdp_data, Monomials(2, 3))
 
 
-def _one_line(exc_info, kind, fragment):
-    assert exc_info.type is kind or issubclass(exc_info.type, kind)
+def _refused(call, kind, fragment) -> str:
+    """``call()`` raises ``kind`` (or a subclass) with a one-line message holding ``fragment``; returns it."""
+    with pytest.raises(kind) as exc_info:
+        call()
     msg = str(exc_info.value)
     assert "\n" not in msg
     assert fragment in msg, msg
+    return msg
 
 
 SYSTEM_CALLS = [
@@ -55,9 +58,7 @@ SYSTEM_CALLS = [
 
 @pytest.mark.parametrize("call, fragment", SYSTEM_CALLS)
 def test_bad_system_parameters_are_refused(call, fragment):
-    with pytest.raises(SystemDefinitionError) as exc_info:
-        call()
-    _one_line(exc_info, SystemDefinitionError, fragment)
+    _refused(call, SystemDefinitionError, fragment)
 
 
 def test_valid_system_parameters_still_accepted():
@@ -90,9 +91,7 @@ DICTIONARY_CALLS = [
 
 @pytest.mark.parametrize("call, fragment", DICTIONARY_CALLS)
 def test_bad_dictionary_settings_are_refused(call, fragment):
-    with pytest.raises(ConfigError) as exc_info:
-        call()
-    _one_line(exc_info, ConfigError, fragment)
+    _refused(call, ConfigError, fragment)
 
 
 def test_valid_dictionary_settings_unchanged():
@@ -116,9 +115,7 @@ CONFIG_CALLS = [
 
 @pytest.mark.parametrize("kwargs, fragment", CONFIG_CALLS)
 def test_bad_identify_config_is_refused(kwargs, fragment):
-    with pytest.raises(ConfigError) as exc_info:
-        IdentifyConfig(**kwargs)
-    _one_line(exc_info, ConfigError, fragment)
+    _refused(lambda: IdentifyConfig(**kwargs), ConfigError, fragment)
 
 
 def test_valid_identify_config_still_accepted():
@@ -142,9 +139,7 @@ def _identify_calls(vdp_data):
                                   "dictionary None"])
 def test_bad_identify_arguments_are_refused(vdp_data, case):
     call, kind, fragment = _identify_calls(vdp_data)[case]
-    with pytest.raises(kind) as exc_info:
-        call()
-    _one_line(exc_info, kind, fragment)
+    _refused(call, kind, fragment)
 
 
 def test_pendulum_data_with_vdp_system_refused():
@@ -201,10 +196,8 @@ BAD_FILES = [
 @pytest.mark.parametrize("name, edit_meta, edit_arrays, fragment", BAD_FILES)
 def test_damaged_model_files_are_refused(model, tmp_path, name, edit_meta, edit_arrays, fragment):
     path = _edited_copy(model, tmp_path, name, edit_meta, edit_arrays)
-    with pytest.raises(ModelFileError) as exc_info:
-        KoopmanBilinearModel.load(path)
-    _one_line(exc_info, ModelFileError, fragment)
-    assert name in str(exc_info.value) and "re-run identification" in str(exc_info.value)
+    msg = _refused(lambda: KoopmanBilinearModel.load(path), ModelFileError, fragment)
+    assert name in msg and "re-run identification" in msg
 
 
 def test_good_model_file_round_trips(model, tmp_path):
@@ -229,9 +222,7 @@ MODEL_CALLS = [
 
 @pytest.mark.parametrize("call, fragment", MODEL_CALLS)
 def test_bad_model_arguments_are_refused(model, call, fragment):
-    with pytest.raises(ConfigError) as exc_info:
-        call(model)
-    _one_line(exc_info, ConfigError, fragment)
+    _refused(lambda: call(model), ConfigError, fragment)
 
 
 def test_valid_model_calls_unchanged(model):
