@@ -79,13 +79,9 @@ def _system(path: Path) -> str:
 def state_names(system: str) -> tuple[str, str]:
     """The first two state names of a results CSV's system: the built-in system's (``pendulum-u0.5``: a variant of
     ``pendulum``, its part before '-'), else ('x1', 'x2') (the CSVs do not record names)."""
-    from ..systems.registry import SYSTEMS, make_system
-    for name in (system, system.split("-", 1)[0]):
-        if name in SYSTEMS:
-            names = make_system(name).state_names
-            if len(names) >= 2:
-                return str(names[0]), str(names[1])
-    return "x1", "x2"
+    from ..systems.registry import builtin_state_names
+    names = builtin_state_names(system)
+    return (names[0], names[1]) if names and len(names) >= 2 else ("x1", "x2")
 
 
 def _label(path: Path) -> str:

@@ -34,7 +34,8 @@ class RoaError(KexpError):
     """The sweep cannot be drawn as one region-of-attraction figure (too many groups)."""
 
 
-def _kind(row: dict, tol: float | None = None) -> str:
+def run_kind(row: dict, tol: float | None = None) -> str:
+    """How a run is drawn: success, not settled by T (‖x(T)‖ < 10·tol), failed, diverged or failed job."""
     if row["ok"]:
         if row["success"]:
             return "success"
@@ -64,7 +65,7 @@ def omega_curves(clf: dict) -> list[tuple[np.ndarray, bool, str]]:
     return out
 
 
-def _sim_settings(job: Path, log=None) -> dict:
+def sim_settings(job: Path, log=None) -> dict:
     """The job's sim settings (T, tol): its .hydra/config.yaml, else its log's /config; {} when neither says."""
     import yaml
     try:
@@ -75,11 +76,14 @@ def _sim_settings(job: Path, log=None) -> dict:
     return {k: _level(sim.get(k)) for k in ("T", "tol")} if isinstance(sim, dict) else {}
 
 
-def success_rule(sim: dict) -> str:
-    """The success rule with the values of T and tol (those known)."""
-    tol, T = sim.get("tol"), sim.get("T")
-    return (f"success: ‖x(T) − x_eq‖ < {'tol' if tol is None else f'{tol:g}'} at "
-            f"{'T' if T is None else f'T = {T:g} s'}")
+def success_rule(sims: list[dict]) -> str:
+    """The success rule with the runs' values of T and tol (:func:`sim_settings`; several: joined with '/'; none
+    known: the symbols)."""
+    def joined(key):
+        values = sorted({s[key] for s in sims if s.get(key) is not None})
+        return " / ".join(f"{v:g}" for v in values) if values else None
+    tol, T = joined("tol"), joined("T")
+    return f"success: ‖x(T) − x_eq‖ < {tol or 'tol'} at {'T' if T is None else f'T = {T} s'}"
 
 
 def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
@@ -121,7 +125,7 @@ def _group_meta(members: list[dict]) -> tuple[int, list[str], list, dict]:
             if logged and len(logged) == n:
                 names = [str(s) for s in logged]
             curves = omega_curves(log.one("/clf") or {})
-        sim = sim or _sim_settings(Path(r["path"]), log)
+        sim = sim or sim_settings(Path(r["path"]), log)
         if read and sim:
             break
     return n, names, curves, sim
@@ -156,7 +160,7 @@ def roa_figure(sweep: str | Path, out: str | Path, *, max_groups: int = MAX_GROU
             ax = axes[gi, pi]
             for kind, style in KINDS:
                 p = np.array([[r["x0"][i], r["x0"][j] if n > 1 else 0.0] for r in drawable
-                              if _kind(r, sim.get("tol")) == kind])
+                              if run_kind(r, sim.get("tol")) == kind])
                 if p.size:
                     ax.scatter(p[:, 0], p[:, 1], s=30, label=f"{kind} ({len(p)})", **style)
             if n == 2:
@@ -168,14 +172,14 @@ def roa_figure(sweep: str | Path, out: str | Path, *, max_groups: int = MAX_GROU
                      "success over initial conditions")
             titles.append(title)
             head = "" if label == "(all)" else (label if len(label) < 60 else label[:57] + "...") + "\n"
-            ax.set_title(f"{head}{title} ({successes}/{len(members)})\n{success_rule(sim)}", fontsize=9)
+            ax.set_title(f"{head}{title} ({successes}/{len(members)})\n{success_rule([sim])}", fontsize=9)
             ax.grid(True, alpha=0.3)
             if ax.get_legend_handles_labels()[0]:
                 ax.legend(fontsize=7, loc="best", framealpha=0.8)
         for ax in axes[gi, len(pairs):]:
             ax.set_visible(False)
         facts["groups"].append({"label": label, "n": n, "runs": len(members), "successes": successes,
-                                "not_settled": sum(_kind(r, sim.get("tol")) == NOT_SETTLED for r in members),
+                                "not_settled": sum(run_kind(r, sim.get("tol")) == NOT_SETTLED for r in members),
                                 "drawn": len(drawable), "panels": titles, "T": sim.get("T"), "tol": sim.get("tol")})
     notes = []
     if any(n > 2 for n, *_ in metas):

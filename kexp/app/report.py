@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..analysis import roa
 from ..cli import Parser
 from .aggregate import ReportError, aggregate, summarize
 
@@ -123,7 +124,7 @@ def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: 
     path.write_text("\n".join(lines).rstrip() + "\n")
 
 
-NOT_SETTLED = "not settled by T (‖x(T)‖ < 10·tol)"   # the label kexp.analysis.roa gives these runs too
+NOT_SETTLED = roa.NOT_SETTLED
 KINDS = (("success", dict(marker="o", color="tab:green")), (NOT_SETTLED, dict(marker="o", color="tab:orange")),
          ("failed", dict(marker="o", color="tab:red")), ("diverged", dict(marker="x", color="tab:red")),
          ("job did not complete", dict(marker="x", color="0.5")))
@@ -132,31 +133,23 @@ RUG_BELOW = 10                                 # fewer values than this: a rug o
 
 
 def sim_settings(row: dict) -> tuple[float | None, float | None]:
-    """(T, tol) of a job (``sim.T``, ``sim.tol``: success is ‖x(T) − x_eq‖ < tol) from its .hydra/config.yaml;
-    None where the job folder holds no readable config."""
+    """(T, tol) of a job (``sim.T``, ``sim.tol``: success is ‖x(T) − x_eq‖ < tol), as kexp.analysis.roa reads
+    them; None where the job folder tells neither."""
     return _sim_settings(row.get("path") or "")
 
 
 @functools.lru_cache(maxsize=None)
 def _sim_settings(path: str) -> tuple[float | None, float | None]:
-    import yaml
-    try:
-        sim = (yaml.safe_load((Path(path) / ".hydra" / "config.yaml").read_text()) or {}).get("sim") or {}
-    except (OSError, ValueError, AttributeError, yaml.YAMLError):
-        return None, None
-    num = (lambda v: float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None)
-    return num(sim.get("T")), num(sim.get("tol"))
+    sim = roa.sim_settings(Path(path)) if path else {}
+    return sim.get("T"), sim.get("tol")
 
 
 def _kind(row: dict) -> str:
-    if not row["ok"]:
-        return "diverged" if row["status"] == "diverged" else "job did not complete"
-    if row["success"]:
-        return "success"
-    tol = sim_settings(row)[1]
-    if tol is not None and row["final_error"] is not None and row["final_error"] < 10 * tol:
-        return NOT_SETTLED
-    return "failed"
+    """kexp.analysis.roa's kind of a run (success, not settled by T, failed, diverged), a job that did not
+    complete named as such."""
+    if not row["ok"] and row["status"] != "diverged":
+        return "job did not complete"
+    return roa.run_kind(row, sim_settings(row)[1])
 
 
 def _state_names(members: list[dict], n: int) -> list[str]:
@@ -174,26 +167,16 @@ def _state_names(members: list[dict], n: int) -> list[str]:
         if logged and len(logged) == n:
             return [str(x) for x in logged]
         break
-    from ..systems.registry import SYSTEMS, make_system
+    from ..systems.registry import builtin_state_names
     systems = {r["system"] for r in members if r.get("system")}
-    if len(systems) == 1 and (name := systems.pop()) in SYSTEMS:
-        names = make_system(name).state_names
-        if len(names) == n:
-            return [str(x) for x in names]
-    return [f"x{i + 1}" for i in range(n)]
-
-
-def _joined(values) -> str:
-    return " / ".join(format(v, "g") for v in sorted(set(values)))
+    names = builtin_state_names(systems.pop(), n) if len(systems) == 1 else None
+    return names or [f"x{i + 1}" for i in range(n)]
 
 
 def success_rule(members: list[dict]) -> str:
-    """'success: ‖x(T) − x_eq‖ < 0.01 at T = 5 s' from the runs' configs (several values: joined with '/')."""
-    settings = [sim_settings(r) for r in members]
-    tols = [tol for _, tol in settings if tol is not None]
-    ts = [t for t, _ in settings if t is not None]
-    return (f"success: ‖x(T) − x_eq‖ < {_joined(tols) if tols else 'sim.tol'} at "
-            + (f"T = {_joined(ts)} s" if ts else "the end T of the run"))
+    """kexp.analysis.roa's success rule over the runs' settings, e.g. 'success: ‖x(T) − x_eq‖ < 0.01 at T = 5 s'
+    (several values: joined with '/')."""
+    return roa.success_rule([dict(zip(("T", "tol"), sim_settings(r))) for r in members])
 
 
 def _group_title(label: str, members: list[dict]) -> str:

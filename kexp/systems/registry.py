@@ -52,3 +52,14 @@ def make_system(name: str, params: Mapping[str, Any] | None = None) -> ControlAf
         raise SystemDefinitionError(f"system {name!r}: bad parameters {params} ({exc})") from None
     check_system(system)
     return system
+
+
+def builtin_state_names(name: str, n: int | None = None) -> list[str] | None:
+    """The state names of the built-in system ``name`` (or of a variant named ``<system>-…``, e.g.
+    ``pendulum-u0.5``), if it has ``n`` states (any number if None); None otherwise: for labels where a log or CSV
+    does not record the names."""
+    for key in (name, name.split("-", 1)[0]):
+        if key in SYSTEMS:
+            names = [str(x) for x in make_system(key).state_names]
+            return names if n is None or len(names) == n else None
+    return None
