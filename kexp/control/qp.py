@@ -15,7 +15,7 @@ import piqp
 from numba import njit
 
 from ..errors import ConfigError
-from .ipm import SOLVED, STATUS_NAMES, solve_qp
+from .ipm import MAX_ITER, SOLVED, STATUS_NAMES, solve_qp
 
 SOLVERS = ("ipm", "piqp")
 
@@ -67,7 +67,9 @@ class QpResult:
 
 class DenseQp:
     """A QP of fixed sizes (n variables, n_ineq rows of G), solved again and again with new data.  ``eps`` is the
-    convergence tolerance (absolute and relative), ``max_iter`` the iteration limit, ``solver`` 'ipm' or 'piqp'."""
+    convergence tolerance (absolute and relative), ``max_iter`` the iteration limit, ``solver`` 'ipm' or 'piqp'.
+    The interior point that reaches ``max_iter`` solves again with its safeguard (another ``max_iter`` at most;
+    the result's iterations count both passes)."""
 
     def __init__(self, n: int, n_ineq: int, *, eps: float = 1e-8, max_iter: int = 100, solver: str = "ipm"):
         if n < 1 or n_ineq < 0:
@@ -140,7 +142,10 @@ class DenseQp:
         G = np.ascontiguousarray(G)
         x = np.empty(self.n)
         t0 = time.perf_counter()
-        code, iters = solve_qp(H, g, G, h_u, x_l, x_u, self.eps, self.max_iter, x)
+        code, iters = solve_qp(H, g, G, h_u, x_l, x_u, self.eps, self.max_iter, x, False)
+        if code == MAX_ITER:     # plain Mehrotra cycled: again with the safeguard (kexp.control.ipm.solve_qp)
+            code, more = solve_qp(H, g, G, h_u, x_l, x_u, self.eps, self.max_iter, x, True)
+            iters += more
         dt = time.perf_counter() - t0
         ok = code == SOLVED
         name = STATUS_NAMES[code]
