@@ -7,6 +7,7 @@
 #   results/regions.sh --list            # every row this script knows
 #   results/regions.sh --map ROW [...]    # the region maps' 400 x0: 300 more from default_rng(43) over [-2, 2]²,
 #                                         # into results/regions/map/ROW.csv with the row's 100 (run those first)
+#   results/regions.sh --overrides ROW   # the row's kexp overrides, one per line (results/reproduce.sh)
 #
 # Row names: <system>[-uN]_<controller>: the working preset +experiment=<system>; -uN: the input bound |u| ≤ N
 # (controller.u_min=-N, controller.u_max=N) for every controller of the row, oracle included; controller lmpc
@@ -34,6 +35,11 @@ overrides() {  # ROW -> the kexp overrides of that row
     fi
     printf '%s\n' "${out[@]}"
 }
+
+if [ "${1:-}" = "--overrides" ]; then   # the row's kexp overrides, one per line (results/reproduce.sh)
+    [ $# = 2 ] || { echo "usage: $0 --overrides ROW" >&2; exit 2; }
+    overrides "$2"; exit
+fi
 
 ROWS=()
 for s in vanderpol pendulum; do

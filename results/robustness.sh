@@ -6,11 +6,13 @@
 #   results/robustness.sh ROW [ROW ...]     # e.g. vanderpol_lmpc-reg-noise1 pendulum_nmpc-noise3
 #   results/robustness.sh --list            # the rows it runs for the README's robustness table (any row of
 #                                           # the grammar below runs)
+#   results/robustness.sh --overrides ROW   # the row's kexp overrides, one per line (results/reproduce.sh)
 #
 # Row names: <system>_<controller>[-reg][-noise1|-noise3][-raw|-sgN][-mu0.8|...|-c0.012]; -reg: B, b regressed
 # from excited data (G unknown); -noiseN: N % Gaussian noise (of the data's RMS) on the data and the closed loop's
 # measurements, the data smoothed before identification (data.smooth.window=7, or N with -sgN) unless -raw; mu…/c…: the
-# plant's parameter (Van der Pol μ = 1, pendulum c = 0.01) 20 % off the data's system.
+# plant's parameter (Van der Pol μ = 1, pendulum c = 0.01) 20 % off the data's system.  Controllers: lmpc (the working
+# preset), paper-lmpc (the paper's recipe, +experiment=paper_<system>), lqr, nmpc (the true-model oracle).
 # The table (`kexp-results robustness results/*.csv`) reads the conditions from the runs' summaries, not from
 # these names.
 set -euo pipefail
@@ -21,8 +23,10 @@ X0=$(x0_list -1 1)
 overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 system=${1%%_*} rest=${1#*_}
     local ctrl=${rest%%-*} out=("+experiment=$system")
+    [[ $rest == paper-lmpc* ]] && ctrl=paper-lmpc      # the paper's recipe, +experiment=paper_<system>
     case $ctrl in
         lmpc) ;;
+        paper-lmpc) out=("+experiment=paper_$system") ;;
         lqr) out+=(controller=lqr) ;;
         nmpc) out+=(controller=nmpc controller.horizon=20) ;;
         *) echo "unknown controller in row $row" >&2; return 2 ;;
@@ -47,6 +51,11 @@ overrides() {  # ROW -> the kexp overrides of that row
     printf '%s\n' "${out[@]}"
 }
 
+if [ "${1:-}" = "--overrides" ]; then   # the row's kexp overrides, one per line (results/reproduce.sh)
+    [ $# = 2 ] || { echo "usage: $0 --overrides ROW" >&2; exit 2; }
+    overrides "$2"; exit
+fi
+
 ROWS=()
 for s in vanderpol pendulum; do
     if [ $s = vanderpol ]; then lo=mu0.8 hi=mu1.2; else lo=c0.008 hi=c0.012; fi
@@ -63,6 +72,6 @@ for row in "$@"; do
     mapfile -t ov < <(overrides "$row")
     [ ${#ov[@]} -gt 0 ] || exit 2     # overrides said why on stderr
     dest=results/robustness
-    [[ $row =~ ^[a-z_]+_(lmpc|lqr|nmpc)$ ]] && dest=results
+    [[ $row =~ ^[a-z_]+_(paper-lmpc|lmpc|lqr|nmpc)$ ]] && dest=results
     sweep_row "$row" "sweeps/$row" "$dest" "$X0" "${ov[@]}"
 done

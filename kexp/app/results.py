@@ -4,6 +4,7 @@ ratio to the oracle (nonlinear MPC with the true model) on the same initial cond
     kexp-results collect SWEEP_DIR NAME [-o results/]   # condense a sweep into results/NAME.csv (committed)
     kexp-results table results/*.csv                     # print the Markdown table (the README's)
     kexp-results robustness results/*.csv results/robustness/*.csv   # the robustness table (the README's)
+    kexp-results sample CSV N / compare CSV NEW.csv      # re-run a committed row's x0 and compare (reproduce.py)
 
 The condensed CSVs are small and committed, so the table can be regenerated (and is, by a test) without
 re-running the sweeps.  A CSV's name is ``<system>_<config>.csv``; the oracle of a system is its ``*_nmpc.csv``.
@@ -187,9 +188,25 @@ def main(argv=None) -> None:
     t.add_argument("csv", nargs="+")
     rb = sub.add_parser("robustness", help="print the Markdown robustness table (kexp.app.robustness)")
     rb.add_argument("csv", nargs="+")
+    sa = sub.add_parser("sample", help="print N of a CSV's x0 as one Hydra list value (kexp.app.reproduce)")
+    sa.add_argument("csv")
+    sa.add_argument("n", type=int, help="how many x0, evenly spaced over the CSV's rows")
+    co = sub.add_parser("compare", help="compare a re-run's CSV with the committed one, run by run (exit 1 if "
+                                        "any run disagrees)")
+    co.add_argument("committed")
+    co.add_argument("new")
+    co.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance on cost and max |u| (1e-6)")
     args = p.parse_args(argv)
     try:
-        if args.cmd == "collect":
+        if args.cmd in ("sample", "compare"):
+            from . import reproduce
+            if args.cmd == "sample":
+                print(reproduce.hydra_list(reproduce.sample(args.csv, args.n)))
+            else:
+                comparison = reproduce.compare(args.committed, args.new, args.rtol)
+                print(comparison.report())
+                sys.exit(0 if comparison.agrees else 1)
+        elif args.cmd == "collect":
             print(f"wrote {collect(args.sweep, args.name, args.out)}")
         elif args.cmd == "robustness":
             from .robustness import table as robustness_table

@@ -1,0 +1,159 @@
+"""Does a committed results row still come out of today's code?  Re-run some of its initial conditions and
+compare the new summaries with the committed ones, run by run.
+
+    kexp-results sample results/pendulum_lmpc.csv 10        # 10 of the row's x0, as one Hydra list value
+    kexp-results compare results/pendulum_lmpc.csv NEW.csv   # each run of NEW against the committed run
+
+``results/reproduce.sh`` does both for any committed CSV, with the row's overrides from the script that made it.
+A CSV keeps x0 to 10 significant digits; :func:`sample` gives the full-precision x0 the row scripts swept
+(``np.random.default_rng(seed).uniform(low, high, (2, n))``, :data:`GENERATORS`) wherever a CSV's x0 is one of
+theirs, so that a re-run starts where the committed run started, bit for bit.
+
+What agrees (:func:`compare`): the discrete columns exactly (status, success, fallbacks and the conditions); cost
+and max |u| to ``rtol`` of the committed value (default 1e-6: the portable golden policy's bound on a model's
+prediction, README "Golden recordings"; the same machine and code reproduce them to the CSV's 10 digits); the
+settling time to one control step (0.01 s: a run that creeps along the tolerance can cross it one step apart).  The
+solve times are wall-clock and not compared.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .aggregate import ReportError
+from .results import read_csv
+
+GENERATORS = ((42, -1.0, 1.0, 100), (42, -2.0, 2.0, 100), (43, -2.0, 2.0, 300))
+"""(seed, low, high, n) of the x0 the row scripts sweep: results/robustness.sh, results/regions.sh and its --map."""
+EXACT = ("status", "success", "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing",
+         "sim_noise", "mismatch")
+RELATIVE = ("cost", "max_abs_u")
+SETTLE_ATOL = 0.0101     # one control step of 0.01 s, and the CSV's rounding
+SHOWN = 10               # runs that disagree listed in a report
+
+
+def _known_x0() -> dict:
+    """{(x0_1, x0_2) as a CSV writes them (%.10g): the full-precision pair} over :data:`GENERATORS`."""
+    known = {}
+    for seed, low, high, n in GENERATORS:
+        for a, b in np.random.default_rng(seed).uniform(low, high, (2, n)).T:
+            known[(f"{a:.10g}", f"{b:.10g}")] = (float(a), float(b))
+    return known
+
+
+def sample(path: str | Path, n: int) -> list[tuple[float, float]]:
+    """``n`` x0 of a results CSV, evenly spaced over its rows (all of them if it has fewer), each the row
+    scripts' full-precision x0 where the CSV's is one of theirs, else the CSV's own digits."""
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ReportError(f"sample size {n!r}: give a whole number >= 1")
+    rows = read_csv(path)
+    idx = np.unique(np.linspace(0, len(rows) - 1, min(n, len(rows))).round().astype(int))
+    known = _known_x0()
+    out = []
+    for i in idx:
+        key = (rows[i]["x0_1"], rows[i]["x0_2"])
+        if "" in key:
+            raise ReportError(f"{path}: row {i + 2} has no x0; a run without one cannot be re-run")
+        out.append(known.get(key, (float(key[0]), float(key[1]))))
+    return out
+
+
+def hydra_list(x0s) -> str:
+    """x0s as one Hydra list value (``sim.x0=...`` of a multirun), each float written exactly (repr)."""
+    return ",".join(f"[{a!r},{b!r}]" for a, b in x0s)
+
+
+@dataclass(frozen=True)
+class RunDiff:
+    """One re-run against the committed run of the same x0: ``fields`` the columns that disagree, each
+    (column, committed value, new value) as the CSVs hold them; empty when the run agrees."""
+    x0: tuple[str, str]
+    fields: tuple[tuple[str, str, str], ...]
+
+    @property
+    def agrees(self) -> bool:
+        return not self.fields
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """What ``compare`` found: one :class:`RunDiff` per new run, the largest relative cost difference over the
+    runs whose costs were compared (nan when none), the tolerance used, and the columns one CSV lacked."""
+    committed: str
+    new: str
+    runs: tuple[RunDiff, ...]
+    worst_cost_rel: float
+    rtol: float
+    skipped: tuple[str, ...]
+
+    @property
+    def agrees(self) -> bool:
+        return all(r.agrees for r in self.runs)
+
+    def report(self) -> str:
+        """A few lines: the verdict, then each run that disagrees and how."""
+        n_ok = sum(r.agrees for r in self.runs)
+        worst = "–" if math.isnan(self.worst_cost_rel) else f"{self.worst_cost_rel:.1e}"
+        lines = [f"{self.committed}: {n_ok}/{len(self.runs)} re-run x0 agree with the committed runs "
+                 f"(cost and max |u| to rtol {self.rtol:g}, worst cost difference {worst}; settling time to "
+                 f"{SETTLE_ATOL:g} s; discrete columns exactly)"]
+        if self.skipped:
+            lines.append(f"  not compared (only in one CSV): {', '.join(self.skipped)}")
+        differ = [r for r in self.runs if not r.agrees]
+        for r in differ[:SHOWN]:
+            what = "; ".join(f"{c} {a} -> {b}" for c, a, b in r.fields)
+            lines.append(f"  x0 ({r.x0[0]}, {r.x0[1]}): {what}")
+        if len(differ) > SHOWN:
+            lines.append(f"  … and {len(differ) - SHOWN} more runs that disagree")
+        return "\n".join(lines)
+
+
+def _float(v: str) -> float:
+    return float(v) if v != "" else math.nan
+
+
+def _differs(col: str, a: str, b: str, rtol: float) -> bool:
+    if col in RELATIVE:
+        fa, fb = _float(a), _float(b)
+        if math.isnan(fa) or math.isnan(fb):
+            return (a == "") != (b == "")
+        return abs(fa - fb) > rtol * abs(fa)
+    if col == "settling_time_s":
+        fa, fb = _float(a), _float(b)
+        if math.isinf(fa) or math.isinf(fb) or math.isnan(fa) or math.isnan(fb):
+            return a != b
+        return abs(fa - fb) > SETTLE_ATOL
+    return a != b
+
+
+def compare(committed: str | Path, new: str | Path, rtol: float = 1e-6) -> Comparison:
+    """Each run of the ``new`` CSV against the ``committed`` run of the same x0 (to the CSVs' 10 digits):
+    :class:`Comparison`.  ReportError when the two files' names (rows) differ, a new x0 is not among the
+    committed ones, or ``rtol`` is not a finite number >= 0."""
+    if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not 0 <= rtol < math.inf:
+        raise ReportError(f"--rtol {rtol!r}: give a finite number >= 0")
+    if Path(committed).stem != Path(new).stem:
+        raise ReportError(f"{committed} and {new}: rows of two names; compare a re-run of a row with the committed "
+                          "row of the same <system>_<configuration>")
+    old_rows, new_rows = read_csv(committed), read_csv(new)
+    old = {(r["x0_1"], r["x0_2"]): r for r in old_rows}
+    columns = EXACT + RELATIVE + ("settling_time_s",)
+    shared = [c for c in columns if c in old_rows[0] and c in new_rows[0]]
+    skipped = tuple(c for c in columns if (c in old_rows[0]) != (c in new_rows[0]))
+    runs, worst = [], math.nan
+    for r in new_rows:
+        key = (r["x0_1"], r["x0_2"])
+        if key not in old:
+            raise ReportError(f"{new}: x0 ({key[0]}, {key[1]}) is not a run of {committed}; compare a re-run of "
+                              "the committed row's x0 (kexp-results sample)")
+        o = old[key]
+        diffs = tuple((c, o[c], r[c]) for c in shared if _differs(c, o[c], r[c], rtol))
+        runs.append(RunDiff(key, diffs))
+        ca, cb = _float(o["cost"]), _float(r["cost"])
+        if not (math.isnan(ca) or math.isnan(cb)) and ca != 0:
+            rel = abs(ca - cb) / abs(ca)
+            worst = rel if math.isnan(worst) else max(worst, rel)
+    return Comparison(str(committed), str(new), tuple(runs), worst, float(rtol), skipped)
