@@ -4,6 +4,8 @@ code 2, like every other refusal of theirs (argparse itself prints its usage lin
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 
 
 class Parser(argparse.ArgumentParser):
@@ -11,3 +13,12 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def emit(text: str) -> None:
+    """Print ``text`` to stdout; a reader that leaves early (``kexp-results table … | head -1``) ends the output
+    quietly, not with 'error: Broken pipe' or a traceback, and the command's exit code stays its verdict."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # Python's documented recipe

@@ -163,3 +163,16 @@ def test_the_installed_command_prints_one_line_and_no_traceback(tmp_path):
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.splitlines() == [f"kexp-results: error: {p}: not a text CSV (binary data: an .mcap log?); "
                                         "pass a results CSV written by kexp-results collect"]
+
+
+@pytest.mark.parametrize("argv", [["table"], ["compare"]])
+def test_a_reader_that_leaves_early_ends_the_output_quietly(tmp_path, argv):
+    """`kexp-results table … | head -1`: the table went to a closed pipe and the command said 'error: Broken pipe'
+    with exit code 2; now nothing on stderr and the exit code is the command's own (compare: its verdict)."""
+    a = _write(tmp_path / "vanderpol_lmpc.csv")
+    args = ["table", str(a)] if argv == ["table"] else ["compare", str(a), str(a)]
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from kexp.app.results import main; main()", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()               # no reader left: the command's first write meets a closed pipe
+    err = proc.stderr.read().decode()
+    assert proc.wait() == 0 and err == "", err

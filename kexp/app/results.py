@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cli import Parser
+from ..cli import Parser, emit
 from .aggregate import ReportError, aggregate
 
 COLUMNS = ["x0_1", "x0_2", "status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms",
@@ -201,18 +201,18 @@ def main(argv=None) -> None:
         if args.cmd in ("sample", "compare"):
             from . import reproduce
             if args.cmd == "sample":
-                print(reproduce.hydra_list(reproduce.sample(args.csv, args.n)))
+                emit(reproduce.hydra_list(reproduce.sample(args.csv, args.n)))
             else:
                 comparison = reproduce.compare(args.committed, args.new, args.rtol)
-                print(comparison.report())
+                emit(comparison.report())
                 sys.exit(0 if comparison.agrees else 1)
         elif args.cmd == "collect":
             print(f"wrote {collect(args.sweep, args.name, args.out)}")
         elif args.cmd == "robustness":
             from .robustness import table as robustness_table
-            print(robustness_table(args.csv))
+            emit(robustness_table(args.csv))
         else:
-            print(table(args.csv))
+            emit(table(args.csv))
     except ReportError as exc:
         print(f"kexp-results: error: {exc}", file=sys.stderr)
         sys.exit(2)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cli import Parser
+from ..cli import Parser, emit
 from ..errors import ConfigError
 from . import behaviour
 from .policy import POLICIES, ChannelRule, Policy, make_policy
@@ -299,17 +299,8 @@ def main(argv=None) -> int:
         return 2
     for w in res.warnings:
         print(f"kexp-diff: warning: {w}", file=sys.stderr)
-    _emit("\n".join(res.report().splitlines()[len(res.warnings):]))
+    emit("\n".join(res.report().splitlines()[len(res.warnings):]))
     return 0 if res.equal else 1
-
-
-def _emit(text: str) -> None:
-    """Print to stdout; a reader that leaves early (`kexp-diff a b | head`) ends the output, not the verdict."""
-    try:
-        print(text, flush=True)
-    except BrokenPipeError:
-        import os
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # Python's documented recipe
 
 
 def main_exit() -> None:
