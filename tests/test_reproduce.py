@@ -41,10 +41,9 @@ def _rows(x0s, **kw):
 def _write(path, rows, header=COLUMNS):
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        for r in rows:
-            w.writerow([r.get(k, "") for k in header])
+        out = csv.DictWriter(f, header, restval="", extrasaction="ignore")
+        out.writeheader()
+        out.writerows(rows)
     return path
 
 
