@@ -16,7 +16,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source results/sweep_lib.sh
-X0=$(x0_list -2 2)
 
 overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 head=${1%%_*} ctrl=${1#*_}
@@ -40,6 +39,8 @@ if [ "${1:-}" = "--overrides" ]; then   # the row's kexp overrides, one per line
     [ $# = 2 ] || { echo "usage: $0 --overrides ROW" >&2; exit 2; }
     overrides "$2"; exit
 fi
+
+X0=$(x0_list -2 2)      # after --overrides, which needs no x0
 
 ROWS=()
 for s in vanderpol pendulum; do

@@ -18,7 +18,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source results/sweep_lib.sh
-X0=$(x0_list -1 1)
 
 overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 system=${1%%_*} rest=${1#*_}
@@ -55,6 +54,8 @@ if [ "${1:-}" = "--overrides" ]; then   # the row's kexp overrides, one per line
     [ $# = 2 ] || { echo "usage: $0 --overrides ROW" >&2; exit 2; }
     overrides "$2"; exit
 fi
+
+X0=$(x0_list -1 1)      # after --overrides, which needs no x0
 
 ROWS=()
 for s in vanderpol pendulum; do

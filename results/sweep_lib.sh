@@ -2,9 +2,9 @@
 # row and the sweep that condenses one row into a CSV.
 
 # x0_list LOW HIGH [SEED N]: the N initial conditions np.random.default_rng(SEED).uniform(LOW, HIGH, (2, N)).T
-# (SEED 42, N 100 unless given) as one Hydra list value
+# (SEED 42, N 100 unless given) as one Hydra list value (kexp.app.reproduce: kexp-results sample knows them too)
 x0_list() {
-    python -c "import numpy as np; ics=np.random.default_rng(${3:-42}).uniform($1,$2,(2,${4:-100})).T; print(','.join(f'[{float(a)!r},{float(b)!r}]' for a,b in ics))"
+    python -c "from kexp.app.reproduce import generated_x0, hydra_list; print(hydra_list(generated_x0(${3:-42}, $1, $2, ${4:-100})))"
 }
 
 # sweep_row ROW SWEEP_DIR DEST X0 OVERRIDE...: a multirun over the x0 of X0 of kexp with the overrides into SWEEP_DIR (its

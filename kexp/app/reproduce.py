@@ -35,13 +35,15 @@ SETTLE_ATOL = 0.0101     # one control step of 0.01 s, and the CSV's rounding
 SHOWN = 10               # runs that disagree listed in a report
 
 
+def generated_x0(seed: int, low: float, high: float, n: int) -> list[tuple[float, float]]:
+    """The ``n`` x0 ``np.random.default_rng(seed).uniform(low, high, (2, n)).T`` as Python floats: the row
+    scripts' initial conditions (results/sweep_lib.sh's x0_list prints them with :func:`hydra_list`)."""
+    return [(float(a), float(b)) for a, b in np.random.default_rng(seed).uniform(low, high, (2, n)).T]
+
+
 def _known_x0() -> dict:
     """{(x0_1, x0_2) as a CSV writes them (%.10g): the full-precision pair} over :data:`GENERATORS`."""
-    known = {}
-    for seed, low, high, n in GENERATORS:
-        for a, b in np.random.default_rng(seed).uniform(low, high, (2, n)).T:
-            known[(f"{a:.10g}", f"{b:.10g}")] = (float(a), float(b))
-    return known
+    return {(f"{a:.10g}", f"{b:.10g}"): (a, b) for gen in GENERATORS for a, b in generated_x0(*gen)}
 
 
 def sample(path: str | Path, n: int) -> list[tuple[float, float]]:
