@@ -155,11 +155,18 @@ def test_row_check_and_linearised_vmax_are_the_numpy_formulas(vdp):
     _, model, clf, _ = vdp
     rng = np.random.default_rng(4)
     rows, h = rng.normal(size=(30, 6)), rng.normal(size=30)
-    for _ in range(20):
+    seen = set()
+    for i in range(40):
+        # the slack puts the worst row 1e-9 inside or outside its tolerance, so both answers occur, at the boundary
         x = rng.normal(size=7)
-        viol = rows @ x[:6] - x[6] - h
         tol = float(rng.choice([0.0, 1e-8, 1.0]))
-        assert rows_hold(rows, h, x, tol) == bool(np.all(viol <= tol * np.maximum(1, np.abs(h))))
+        excess = rows @ x[:6] - h - tol * np.maximum(1, np.abs(h))
+        x[6] = excess.max() + (1e-9 if i % 2 else -1e-9)
+        expected = bool(np.all(rows @ x[:6] - x[6] - h <= tol * np.maximum(1, np.abs(h))))
+        assert expected == bool(i % 2)
+        assert rows_hold(rows, h, x, tol) == expected
+        seen.add((tol, expected))
+    assert {e for _, e in seen} == {True, False} and len({t for t, _ in seen}) == 3
     lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
     bos = block_of_step(block_sizes(40, 5, 10))
     U = rng.uniform(-2, 2, (10, 1))

@@ -160,6 +160,7 @@ def test_the_safeguard_leaves_qps_solved_without_it_nearly_alone():
     """On 300 random QPs the safeguard, which acts only on a feasible iterate whose gap the corrector would raise,
     gives the plain method's solution to 1e-7 (both solve every feasible one)."""
     rng = np.random.default_rng(5)
+    solved = 0
     for _ in range(300):
         n, mg = int(rng.integers(2, 25)), int(rng.integers(0, 6))
         H, g, G, h, x_l, x_u = random_qp(rng, n, mg)
@@ -168,4 +169,6 @@ def test_the_safeguard_leaves_qps_solved_without_it_nearly_alone():
         safe, _ = solve_qp(H, g, G, h, x_l, x_u, 1e-10, 100, y, True)
         assert plain == safe
         if plain == SOLVED:
+            solved += 1
             assert np.abs(x - y).max() <= 1e-7 * (1 + np.abs(x).max())
+    assert solved >= 250       # measured 295 of 300 (the rest infeasible), so the comparison really ran
