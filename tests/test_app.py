@@ -13,9 +13,9 @@ from kexp.app.experiment import run
 from kexp.errors import ConfigError
 from kexp.identify import KoopmanBilinearModel
 
-GROUPS = {"system": ["vanderpol", "pendulum", "duffing", "linear", "slow_manifold"], "data": ["circle", "box"],
-          "dictionary": ["monomials5"], "identification": ["edmd"], "clf": ["sdp"],
-          "controller": ["lmpc", "sontag", "lie_gain", "lqr", "nmpc"], "sim": ["default"]}
+# every option of every config group (presets apart: test_presets_*), read from conf/ so that a new one is tested
+GROUPS = {d.name: sorted(f.stem for f in d.glob("*.yaml")) for d in sorted(Path(CONF_DIR).iterdir())
+          if d.is_dir() and d.name != "experiment"}
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11"]
 
@@ -29,6 +29,7 @@ def _compose(overrides):
 def test_every_config_option_composes_and_builds(group, option):
     from kexp.app.build import (build_clf, build_data, build_dictionary, build_identification, build_sim,
                                 build_system)
+    from kexp.app.build import build_controller_spec, build_logging
     cfg = _compose([f"{group}={option}"])
     system = build_system(cfg.system)
     build_data(cfg.data)
@@ -36,7 +37,15 @@ def test_every_config_option_composes_and_builds(group, option):
     build_dictionary(cfg.dictionary, system.n)
     build_clf(cfg.clf)
     build_sim(cfg.sim, system, 0.01)
-    assert cfg.controller.kind in ("lmpc", "explicit", "lqr", "nmpc")
+    build_logging(cfg.logging)
+    assert build_controller_spec(cfg.controller).kind in ("lmpc", "explicit", "lqr", "nmpc")
+
+
+def test_the_option_list_is_conf_s():
+    """The parametrisation above reads conf/: the groups and options a user sees (README) are all there."""
+    assert GROUPS["system"] == ["duffing", "linear", "pendulum", "slow_manifold", "vanderpol"]
+    assert GROUPS["controller"] == ["lie_gain", "lmpc", "lqr", "model_lqr", "nmpc", "sontag"]
+    assert {"data", "dictionary", "identification", "clf", "sim", "logging", "cache"} <= set(GROUPS)
 
 
 def test_default_job_end_to_end_small(tmp_path):

@@ -8,6 +8,8 @@ from kexp.errors import ConfigError
 from kexp.simulate import SimConfig, closed_loop, run_cost
 from kexp.systems import Linear, Pendulum, VanDerPol
 
+from toy import toy_model
+
 
 class Constant:
     name = "constant"
@@ -96,6 +98,12 @@ def test_bad_initial_condition_and_dt_mismatch():
         closed_loop(s, Constant([0.0]), np.array([np.nan, 0.0]))
     with pytest.raises(ConfigError, match="2 finite numbers"):
         closed_loop(s, Constant([0.0]), np.array([0.1, 0.2, 0.3]))
+    # a model sampled at another Δ than the simulation's hold
+    model = toy_model(-np.eye(2), np.zeros((1, 2, 2)), dt=0.01)
+    with pytest.raises(ConfigError, match=r"sim.dt=0.02 differs from the model's Δ=0.01"):
+        closed_loop(s, Constant([0.0]), [0.1, 0.2], SimConfig(T=0.1, dt=0.02), model=model)
+    run = closed_loop(s, Constant([0.0]), [0.1, 0.2], SimConfig(T=0.1, dt=0.01), model=model)
+    assert run.status == "completed" and len(run.records) == 10
 
 
 @pytest.fixture(scope="module")

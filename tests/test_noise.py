@@ -190,13 +190,21 @@ def test_data_noise_is_in_the_model_cache_key_and_the_sim_settings_are_not():
 
 
 def test_data_noise_in_the_run_changes_the_model_and_is_reported(tmp_path):
-    summary = run(_cfg(["data.noise.std=0.03", "sim.T=0.1", "cache.enabled=false"]), tmp_path, echo=lambda *_: None)
+    summary = run(_cfg(["data.noise.std=0.03", "sim.T=0.1", "cache.enabled=false"]), tmp_path / "noisy",
+                  echo=lambda *_: None)
+    clean = run(_cfg(["sim.T=0.1", "cache.enabled=false"]), tmp_path / "clean", echo=lambda *_: None)
     rms = np.array(summary["noise"]["data_rms"])
+    assert clean["noise"]["data_noise_std"] is None and clean["noise"]["data_rms"] == summary["noise"]["data_rms"]
     np.testing.assert_allclose(summary["noise"]["data_noise_std"], 0.03 * rms, rtol=1e-12)
-    model = KoopmanBilinearModel.load(tmp_path / "model.npz")
+    model = KoopmanBilinearModel.load(tmp_path / "noisy" / "model.npz")
     assert any("measurement noise σ per state" in line for line in model.report["data"])
-    saved = json.loads((tmp_path / "summary.json").read_text())
+    saved = json.loads((tmp_path / "noisy" / "summary.json").read_text())
     assert saved["noise"]["data_noise_std"] == summary["noise"]["data_noise_std"]
+    # the noise reached the model: its 1 s free response from (0.5, -0.5) moves by 0.35 (measured) against the
+    # clean data's model (1.4 in size); 0.05 is far above rounding and far below that
+    clean_model = KoopmanBilinearModel.load(tmp_path / "clean" / "model.npz")
+    x0, u = np.array([0.5, -0.5]), np.zeros((100, 1))
+    assert np.abs(model.predict(x0, u)[0] - clean_model.predict(x0, u)[0]).max() > 0.05
 
 
 BAD = [
