@@ -92,6 +92,20 @@ def test_lqr_baseline_reference_costs():
         assert np.allclose([r.metrics.cost for r in runs], pinned[s.name], rtol=1e-5)
 
 
+
+def test_settling_time_and_success_on_a_known_decay():
+    """ẋ = −x from ‖x0‖ = 0.5, u = 0: ‖x(t)‖ = 0.5e^{−t} falls below tol = 1e-2 after ln 50 = 3.912 s, so the
+    first sample after which it stays below is t = 3.92 s (0.5e^{−3.91} = 0.01002 is still above); already inside
+    at t = 0 settles at 0; never inside by T is inf and no success."""
+    s = Linear(A=((-1.0, 0.0), (0.0, -1.0)), B=((0.0,), (1.0,)))
+    run = closed_loop(s, Constant([0.0]), [0.5, 0.0], SimConfig(T=5.0))
+    assert abs(run.metrics.settling_time - 3.92) < 1e-9 and run.metrics.success
+    assert abs(run.metrics.final_error - 0.5 * np.exp(-5.0)) < 1e-9
+    assert closed_loop(s, Constant([0.0]), [0.005, 0.0], SimConfig(T=1.0)).metrics.settling_time == 0.0
+    short = closed_loop(s, Constant([0.0]), [0.5, 0.0], SimConfig(T=3.0))
+    assert short.metrics.settling_time == np.inf and not short.metrics.success
+
+
 def test_bad_initial_condition_and_dt_mismatch():
     s = VanDerPol()
     with pytest.raises(ConfigError, match="finite"):

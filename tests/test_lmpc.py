@@ -154,6 +154,29 @@ def test_expm_frechet_pade_is_the_van_loan_block(m):
             assert np.max(np.abs(L[i] - big[:n, n:])) <= tol * np.max(np.abs(big[:n, n:]))
 
 
+
+def _series_tails_hold(D, norm_x, c):
+    """Whether the truncation at degree D meets zoh_degree's accuracy on the series' true tails (summed term by
+    term here, not bounded): e^{‖X‖}·Σ_{d>D} c^d/d! ≤ 2⁻⁵⁴ and c·e^{‖X‖}·Σ_{d>D} c^{d−1}/(d−1)! ≤ 2⁻⁵⁴·max(1, c·e^{‖X‖})."""
+    import math
+    term = lambda d: math.exp(d * math.log(c) - math.lgamma(d + 1))  # noqa: E731   c^d/d!
+    scale, tail = math.exp(norm_x), 2.0 ** -54
+    tail_e = math.fsum(term(d) for d in range(D + 1, D + 300))
+    tail_d = math.fsum(term(d - 1) for d in range(D + 1, D + 300))
+    return scale * tail_e <= tail and scale * c * tail_d <= tail * max(1.0, c * scale)
+
+
+def test_zoh_degree_is_the_smallest_that_meets_the_accuracy():
+    """zoh_degree bounds the tails in closed form; on the series' summed tails its degree is enough, and no more
+    than one above the smallest that is (measured: equal to it on this whole grid, D from 2 to 98)."""
+    for norm_x in (0.0, 0.01, 0.5, 2.0):
+        for c in (1e-6, 0.01, 0.3, 1.0, 3.0, 10.0, 25.0):
+            D = zoh_degree(norm_x, c)
+            smallest = next(d for d in range(1, 200) if _series_tails_hold(d, norm_x, c))
+            assert D in (smallest, smallest + 1), (norm_x, c, D, smallest)
+    assert zoh_degree(0.0, 30.0, max_degree=100) is None and zoh_degree(0.0, 30.0, max_degree=200) is not None
+
+
 def test_zoh_polynomial_declines_what_it_cannot_do(vdp):
     _, model, _, _ = vdp
     assert zoh_degree(0.1, 50.0) is None                      # the series would need too many terms

@@ -42,6 +42,10 @@ def test_masked_samples_split_the_stretches():
     assert short == 9 and np.array_equal(y[51:], x[51:]) and np.array_equal(y[[25, 50]], x[[25, 50]])
     alone, _ = smooth_run(x[26:50], np.ones(24, bool), SmoothConfig(21, 3))
     assert np.array_equal(y[26:50], alone)       # filtered on its own: nothing leaks across a masked sample
+    # at the boundary: a stretch of exactly the window's length is filtered, one sample shorter is not
+    for length, filtered in ((21, True), (20, False)):
+        y, short = smooth_run(x[:length], np.ones(length, bool), SmoothConfig(21, 3))
+        assert short == (0 if filtered else length) and np.array_equal(y, x[:length]) is not filtered
 
 
 @pytest.mark.parametrize("bad", [{"window": 20}, {"window": 3, "order": 3}, {"window": 21, "order": 0},
