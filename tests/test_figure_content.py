@@ -116,20 +116,20 @@ def test_theorem1_figure_labels_the_error_and_names_system_and_horizon(tmp_path,
     assert _legend(ax)[0] == r"measured $\|x(t) - \hat{x}(t)\|$"
 
 
-def _sweep(root, jobs, config="hydra"):
+def _sweep(root, jobs, config="hydra", *, log=True, system="vanderpol"):
     """A sweep folder as kexp writes it: per job .hydra/overrides.yaml, summary.json and (``config``) the sim
     settings in .hydra/config.yaml ("hydra"), only in job 0's run.mcap ("log") or nowhere (None); job 0 has a
-    run.mcap (its /clf) unless config is None."""
+    run.mcap (its /clf) unless config is None or not ``log`` (a sweep with logging.mcap=false)."""
     for i, (x0, success, final_error) in enumerate(jobs):
         job = root / str(i)
         (job / ".hydra").mkdir(parents=True)
         (job / ".hydra" / "overrides.yaml").write_text(f"- sim.x0=[{x0[0]},{x0[1]}]\n")
         if config == "hydra":
             (job / ".hydra" / "config.yaml").write_text("sim:\n  T: 5.0\n  tol: 0.01\n  r: 1.0\n")
-        if i == 0 and config is not None:
+        if i == 0 and config is not None and log:
             _log(job / "run.mcap", 5)
         (job / "summary.json").write_text(json.dumps({
-            "status": "completed", "completed": True, "system": "vanderpol", "controller": "lmpc", "x0": x0,
+            "status": "completed", "completed": True, "system": system, "controller": "lmpc", "x0": x0,
             "metrics": {"success": success, "final_error": final_error, "cost": 1.0, "settling_time": None,
                         "max_abs_u": 1.0, "fallbacks": 0, "solve_time_median": 0.001, "solve_time_p99": 0.002}}))
     return root
@@ -147,6 +147,15 @@ def test_roa_title_has_the_rule_and_not_settled_runs_are_told_apart(tmp_path, fi
     assert NOT_SETTLED == "not settled by T (‖x(T)‖ < 10·tol)"
     (g,) = facts["groups"]
     assert (g["T"], g["tol"], g["not_settled"], g["successes"]) == (5.0, 0.01, 1, 1)
+
+
+def test_roa_of_a_sweep_without_logs_names_a_built_in_system_s_states(tmp_path, figures):
+    """Row sweeps run with logging.mcap=false: no Ω curves to draw, but the pendulum's axes are still theta and
+    omega (kexp.systems' names), not x1 and x2."""
+    roa_figure(_sweep(tmp_path / "sweep", JOBS, "hydra", log=False, system="pendulum"), tmp_path / "roa.png")
+    (ax,) = [a for a in figures[0].axes if a.get_visible()]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("theta(0)", "omega(0)")
+    assert _legend(ax) == ["success (1)", f"{NOT_SETTLED} (1)", "failed (2)"]
 
 
 def test_roa_without_t_and_tol_says_so_and_does_not_guess(tmp_path, figures):

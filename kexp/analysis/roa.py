@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import KexpError
 from ..recording.reader import read_log
+from ..systems.registry import builtin_state_names
 
 MAX_GROUPS = 8       # more groups than this: refuse, listing them (one figure per group is unreadable beyond)
 MAX_PAIRS = 6        # n > 4: the first 6 state pairs
@@ -110,10 +111,12 @@ def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
 def _group_meta(members: list[dict]) -> tuple[int, list[str], list, dict]:
     """(n, state names, Ω curves (:func:`omega_curves`), sim settings {T, tol}) of a group: n is the most common
     length of x0 (the state dimension), names and Ω curves come from the first log in the group, T and tol from the
-    first job that tells them (the runs of a group share their settings apart from x0)."""
+    first job that tells them (the runs of a group share their settings apart from x0); without a log (a sweep with
+    ``logging.mcap=false``) a built-in system's names and no Ω curves."""
     lengths = Counter(len(r["x0"]) for r in members if r["x0"])
     n = lengths.most_common(1)[0][0] if lengths else 0
-    names = [f"x{i + 1}" for i in range(n)]
+    system = next((r["system"] for r in members if r.get("system")), None)
+    names = (builtin_state_names(system, n) if system else None) or [f"x{i + 1}" for i in range(n)]
     curves, sim, read = [], {}, False
     for r in members:
         if not r["path"]:
