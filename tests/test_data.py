@@ -81,3 +81,10 @@ def test_split_by_trajectory():
     assert train.n_traj == 8 and test.n_traj == 2
     rows = {tuple(r[0]) for r in train.x} | {tuple(r[0]) for r in test.x}
     assert len(rows) == 10
+    # round(holdout·n) test trajectories, at least one when holdout > 0 and there are two to split; disjoint, sorted
+    from kexp.data.runs import split_indices
+    for n, holdout, n_test in ((10, 0.2, 2), (10, 0.04, 1), (2, 0.01, 1), (1, 0.5, 0), (10, 0.0, 0), (7, 0.5, 4)):
+        tr, te = split_indices(n, holdout, seed=3)
+        assert (0 if te is None else len(te)) == n_test, (n, holdout)
+        both = np.concatenate([tr, [] if te is None else te])
+        assert sorted(both.tolist()) == list(range(n)) and np.all(np.diff(tr) > 0)

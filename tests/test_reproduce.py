@@ -110,10 +110,10 @@ def test_identical_reruns_agree_and_solve_times_are_not_compared(tmp_path, commi
     ("settling_time_s", "5.54", True), ("settling_time_s", "5.52", True), ("settling_time_s", "5.55", False),
     ("settling_time_s", "inf", False), ("success", "False", False), ("status", "diverged", False),
     ("fallbacks", "1", False), ("certificate", "fails", False), ("sim_noise", "0.01", False),
-    ("inputs", "regression", False)])
+    ("inputs", "regression", False), ("max_abs_u", "", False)])
 def test_each_column_by_its_rule(tmp_path, committed, column, new, agrees):
-    """Discrete columns exactly; cost and max |u| to rtol 1e-6 of the committed value; settling time to one
-    step (0.01 s), inf only equal to inf."""
+    """Discrete columns exactly; cost and max |u| to rtol 1e-6 of the committed value, and missing only where
+    the committed one is; settling time to one step (0.01 s), inf only equal to inf."""
     path, rows = committed
     c = compare(path, _new(tmp_path, rows, **{"0": {column: new}}))
     assert c.agrees is agrees
