@@ -158,6 +158,18 @@ def test_roa_of_a_sweep_without_logs_names_a_built_in_system_s_states(tmp_path, 
     assert _legend(ax) == ["success (1)", f"{NOT_SETTLED} (1)", "failed (2)"]
 
 
+
+def test_not_settled_is_within_ten_times_tol():
+    """A completed run that missed tol is drawn as 'not settled by T' only while ‖x(T)‖ < 10·tol, failed from
+    there; without tol it is failed; a run that did not complete is diverged or a failed job."""
+    from kexp.analysis.roa import run_kind
+    done = lambda err: {"ok": True, "success": False, "final_error": err, "status": "completed"}  # noqa: E731
+    assert run_kind(done(0.0999), 0.01) == NOT_SETTLED and run_kind(done(0.1001), 0.01) == "failed"
+    assert run_kind(done(0.05), None) == "failed" and run_kind({**done(0.0), "success": True}, 0.01) == "success"
+    assert run_kind({"ok": False, "success": False, "status": "diverged"}, 0.01) == "diverged"
+    assert run_kind({"ok": False, "success": False, "status": "error"}, 0.01) == "failed job"
+
+
 def test_roa_without_t_and_tol_says_so_and_does_not_guess(tmp_path, figures):
     _, facts = roa_figure(_sweep(tmp_path / "sweep", JOBS, None), tmp_path / "roa.png")
     (ax,) = [a for a in figures[0].axes if a.get_visible()]

@@ -174,6 +174,25 @@ def test_portable_tolerates_rounding_but_exact_does_not(tmp_path):
     assert diff_logs(GOLDEN, changed, policy="portable").equal
 
 
+
+def test_portable_bound_is_relative_to_the_field_s_largest_magnitude(tmp_path):
+    """MODEL's rule: max |Δ| over a field ≤ 1e-9 + 1e-6·(the field's largest |entry| over the channel), not a
+    typical one: x[1] of the last step moved by 0.9 of that bound is equal, by 1.1 of it is not."""
+    from kexp.recording import read_log
+    x = np.abs([m["x"] for m in read_log(GOLDEN).messages("/step")])
+    bound = 1e-9 + 1e-6 * x.max()
+    assert 0.9 * bound > 1e-9 + 1e-6 * x.mean(axis=1).max()   # a scale from each message's mean entry refuses it
+    last = len(x) - 1
+
+    def move(by):
+        return lambda t, p: p["x"].__setitem__(1, p["x"][1] + by) if t == "/step" and p["k"] == last else None
+    for factor, equal in ((0.9, True), (1.1, False)):
+        moved = tmp_path / f"moved{factor}.mcap"
+        copy_log(GOLDEN, moved, move(factor * bound))
+        res = diff_logs(GOLDEN, moved, policy="portable")
+        assert res.equal is equal, res.report()
+
+
 def test_cli_policy_and_a_closed_pipe(tmp_path, capsys):
     assert diff_main(["--policy", "portable", str(GOLDEN), str(GOLDEN)]) == 0
     assert "logs are equal (portable)" in capsys.readouterr().out

@@ -196,7 +196,9 @@ def test_jobs_the_sweep_never_started_are_listed(joblib_sweep, tmp_path):
     assert len(rows) == 3 and [r["ok"] for r in rows] == [True, True, False]
     assert rows[2]["status"] == "not started" and rows[2]["x0"] == [0.0, -1.0]
     assert rows[2]["job"] == "(not started #2)" and rows[2]["reason"].startswith("not started")
-    assert agg.summarize(rows)[0]["runs"] == 3 and agg.summarize(rows)[0]["successes"] == 1
+    summary = agg.summarize(rows)[0]
+    assert (summary["runs"], summary["completed"], summary["failed"], summary["successes"]) == (3, 2, 1, 1)
+    assert summary["success_rate"] == 1 / 3          # of the runs planned, not of those that completed
 
 
 def test_report_errors_exit_2_with_one_line(tmp_path, capsys):
