@@ -48,6 +48,40 @@ def test_cost_formula():
     assert run_cost(t, x, u, np.zeros(2), r=2.0) == pytest.approx(2.25 + 5.0)
 
 
+
+class Sequence:
+    """u_k from a list, one per step (NaN allowed: a controller that fails to give a number)."""
+    name = "sequence"
+
+    def __init__(self, us):
+        self.us, self.k = [np.atleast_1d(np.asarray(u, float)) for u in us], 0
+
+    def reset(self):
+        self.k = 0
+
+    def step(self, x0, z0):
+        u = self.us[self.k]
+        self.k += 1
+        return Constant(u).step(x0, z0)
+
+
+def test_a_non_finite_input_is_held_as_zero_and_the_logged_vdot_uses_the_step_s_own_input():
+    """A controller's NaN or inf input is applied (and recorded) as 0, never passed to the plant; each record's
+    V̇ is L_ΛV + L_BV·u at its z with that step's u (not the last step's)."""
+    from kexp.clf import QuadraticLyapunov
+    s = Linear(A=((0.0, 1.0), (-2.0, -0.3)))
+    model = toy_model([[0.0, 1.0], [-2.0, -0.3]], np.zeros((1, 2, 2)), [[0.0, 1.0]])
+    lyap = QuadraticLyapunov.from_model(model, np.array([[2.0, 0.3], [0.3, 1.0]]))
+    us = [0.5, np.nan, -1.0, np.inf, 2.0, -np.inf, 0.25, 0.0]
+    run = closed_loop(s, Sequence(us), [0.4, -0.2], SimConfig(T=0.08), model=model, lyap=lyap)
+    clean = [0.0 if not np.isfinite(u) else u for u in us]
+    ref = closed_loop(s, Sequence(clean), [0.4, -0.2], SimConfig(T=0.08), model=model, lyap=lyap)
+    assert run.status == "completed" and np.array_equal(run.u[:, 0], clean) and np.array_equal(run.x, ref.x)
+    for rec in run.records:
+        a, beta = lyap.lie(rec.z[None])
+        assert abs(rec.Vdot - float(a[0] + beta[0] @ rec.u)) <= 1e-12 * max(1.0, abs(rec.Vdot))
+
+
 def test_divergence_ends_the_run_with_status():
     s = Linear(A=((1.0, 0.0), (0.0, 2.0)))
     run = closed_loop(s, Constant([0.0]), np.array([1.0, 1.0]), SimConfig(T=20.0, dt=0.1, diverge_bound=100.0))
