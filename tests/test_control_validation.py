@@ -45,6 +45,8 @@ CASES = [
     # -- input bounds: one shared check for every controller and law
     ("lqr reversed", lambda f: LqrController(f.s, 5.0, -5.0), ConfigError,
      "controller.u_min=5.0, controller.u_max=-5.0: need finite u_min < u_max"),
+    ("lmpc equal bounds", lambda f: lmpc(f, lo=2.0, hi=2.0), ConfigError,
+     "controller.u_min=2.0, controller.u_max=2.0: need finite u_min < u_max"),
     ("lqr nan", lambda f: LqrController(f.s, nan, nan), ConfigError, "need finite u_min < u_max"),
     ("lqr q inf", lambda f: LqrController(f.s, -5.0, 5.0, q=inf), ConfigError, "q=inf, r=1.0: both must be finite"),
     ("lmpc -inf", lambda f: lmpc(f, lo=-inf), ConfigError, "controller.u_min=-inf, controller.u_max=5.0: need finite"),

@@ -200,6 +200,17 @@ def test_selection_keeps_best_eigenfunctions():
     cutoff = np.sort(np.unique(full.residual))[:len(np.unique(sel.residual))].max()
     assert np.all(sel.residual <= cutoff + 1e-12)
     assert np.isfinite(sel.C).all() and 0 <= sel.report["output_fit_residual"] < 1
+    # keep never splits a complex pair and never exceeds its count (an odd keep leaves a pair out rather)
+    for keep in (3, 5, 7):
+        odd = identify(s, ds, Monomials(2, 5), IdentifyConfig(keep=keep))
+        assert odd.k <= keep and all(np.sum(odd.block == b) in (1, 2) for b in np.unique(odd.block))
+        assert np.all(odd.eigenvalues.imag[odd.eigenvalues.imag != 0] != 0)
+        pairs = odd.eigenvalues[odd.eigenvalues.imag > 0]
+        assert all(np.any(odd.eigenvalues == np.conj(lam)) for lam in pairs)
+    # max_residual keeps exactly the eigen-coordinates whose residual is at most it
+    limit = float(np.median(full.residual))
+    cut = identify(s, ds, Monomials(2, 5), IdentifyConfig(max_residual=limit))
+    assert np.all(cut.residual <= limit) and cut.k == int(np.sum(full.residual <= limit))
 
 
 def test_forced_data_and_too_little_data_rejected():

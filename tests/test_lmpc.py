@@ -345,6 +345,12 @@ def test_forced_qp_failure_falls_back_to_h(vdp, solver, status):
     assert st.fallback and st.status == "fallback" and "QP failed" in st.reason
     assert st.qp_status == status
     assert np.array_equal(st.u, h(z0[None])[0])
+    # a law on wider bounds than the LMPC's (it warns) falls back within the LMPC's bounds
+    wide = make_law("sontag", clf.lyap, -50.0, 50.0)
+    with pytest.warns(UserWarning, match="differ from the controller's"):
+        tight = Lmpc(model, clf, wide, LmpcConfig(qp_max_iter=1, qp_solver=solver), -0.1, 0.1)
+    st = tight.step(x0, z0)
+    assert st.fallback and abs(wide(z0[None])[0, 0]) > 0.1 and st.u[0] == np.clip(wide(z0[None])[0, 0], -0.1, 0.1)
 
 
 @pytest.mark.parametrize("solver", ["ipm", "piqp"])
