@@ -108,6 +108,14 @@ def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
     return out
 
 
+def fallback_state_names(members: list[dict], n: int) -> list[str]:
+    """The state names of runs whose logs do not record them (or that have no log): the built-in system's when
+    the runs are of one such system, else x1 … xn."""
+    systems = {r["system"] for r in members if r.get("system")}
+    names = builtin_state_names(systems.pop(), n) if len(systems) == 1 else None
+    return names or [f"x{i + 1}" for i in range(n)]
+
+
 def _group_meta(members: list[dict]) -> tuple[int, list[str], list, dict]:
     """(n, state names, Ω curves (:func:`omega_curves`), sim settings {T, tol}) of a group: n is the most common
     length of x0 (the state dimension), names and Ω curves come from the first log in the group, T and tol from the
@@ -115,8 +123,7 @@ def _group_meta(members: list[dict]) -> tuple[int, list[str], list, dict]:
     ``logging.mcap=false``) a built-in system's names and no Ω curves."""
     lengths = Counter(len(r["x0"]) for r in members if r["x0"])
     n = lengths.most_common(1)[0][0] if lengths else 0
-    system = next((r["system"] for r in members if r.get("system")), None)
-    names = (builtin_state_names(system, n) if system else None) or [f"x{i + 1}" for i in range(n)]
+    names = fallback_state_names(members, n)
     curves, sim, read = [], {}, False
     for r in members:
         if not r["path"]:

@@ -167,10 +167,7 @@ def _state_names(members: list[dict], n: int) -> list[str]:
         if logged and len(logged) == n:
             return [str(x) for x in logged]
         break
-    from ..systems.registry import builtin_state_names
-    systems = {r["system"] for r in members if r.get("system")}
-    names = builtin_state_names(systems.pop(), n) if len(systems) == 1 else None
-    return names or [f"x{i + 1}" for i in range(n)]
+    return roa.fallback_state_names(members, n)
 
 
 def success_rule(members: list[dict]) -> str:
@@ -306,7 +303,7 @@ def report(sweep_dir: str | Path, out_dir: str | Path | None = None, *, pictures
 
 def _main(argv) -> int:
     p = Parser(prog="kexp-report", description="Tabulate a sweep of kexp runs (kexp --multirun): "
-                                "report.csv, report_summary.csv, report.md and PNG pictures (with matplotlib).")
+               "report.csv, report_summary.csv, report.md and PNG pictures (with matplotlib).")
     p.add_argument("sweep_dir", help="the sweep folder (e.g. multirun/<date>/<time>), searched recursively")
     p.add_argument("-o", "--out", dest="out_dir", default=None, help="output folder (default: the sweep folder)")
     p.add_argument("--no-pictures", action="store_true", help="skip the PNG pictures")
