@@ -377,15 +377,15 @@ def test_sqp_converges_and_rti_is_close(vdp):
     # Gauss-Newton SQP: linear convergence, measured ~15× per iteration: 8 iterations to 1e-7
     assert st.status == "solved" and 1 < st.iterations <= 12
     # a second SQP started from the converged plan stops at once: a fixed point
+    plan = lambda c, step: np.vstack([step.u[None], c._useq[:-1]])  # noqa: E731   the plan: warm-start shift undone
     again = Lmpc(model, clf, h, LmpcConfig(max_iter=30, tol=1e-7), -5.0, 5.0)
-    again._useq = np.vstack([st.u[None], full._useq[:-1]])  # undo the warm-start shift
+    again._useq = plan(full, st)
     st2 = again.step(x0, z0)
     assert st2.iterations <= 2 and abs(st2.u[0] - st.u[0]) < 1e-6
     # the real-time iteration (one QP from a cold start): here its first input is the SQP's (both at u_max) but
     # its plan is not yet converged (measured 25 % from the SQP's, relative 2-norm)
     rti_ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0)
     rti = rti_ctrl.step(x0, z0)
-    plan = lambda c, step: np.vstack([step.u[None], c._useq[:-1]])  # noqa: E731
     assert rti.iterations == 1 and rti.u[0] == st.u[0] == 5.0
     assert np.linalg.norm(plan(rti_ctrl, rti) - plan(full, st)) > 0.1 * np.linalg.norm(plan(full, st))
     # near the origin, where the input is inside its bounds and the model nearly linear, one QP is nearly the SQP's
