@@ -277,7 +277,7 @@ def diff_logs(a: RunLog | str | Path, b: RunLog | str | Path, *, atol: float = 0
 
 def main(argv=None) -> int:
     p = Parser(prog="kexp-diff", description="Compare two kexp run logs (MCAP). "
-                                "Exit 0: equal, 1: different, 2: unreadable or bad arguments.")
+               "Exit 0: equal, 1: different, 2: unreadable or bad arguments.")
     p.add_argument("a")
     p.add_argument("b")
     p.add_argument("--policy", choices=POLICIES, default="exact",

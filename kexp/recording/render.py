@@ -342,7 +342,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
 
 def _cli(argv: list[str] | None) -> int:
     parser = Parser(prog="kexp-render",
-                                     description="Render a kexp run log (run.mcap) into a Rerun recording (.rrd).")
+                    description="Render a kexp run log (run.mcap) into a Rerun recording (.rrd).")
     parser.add_argument("mcap", help="the run log, e.g. outputs/<date>/<time>/run.mcap")
     parser.add_argument("-o", "--output", default=None, help="the .rrd to write (default: next to the log)")
     args = parser.parse_args(argv)
