@@ -165,7 +165,7 @@ def test_logger_settings_are_refused_at_construction(tmp_path, kwargs, fragment)
 
 @pytest.mark.parametrize("t,payload,fragment", [
     (float("nan"), {}, "log time t=nan"), (float("inf"), {}, "log time t=inf"), (-1.0, {}, "log time t=-1.0"),
-    ("0", {}, "log time t='0'"), (0.0, [1, 2], "payload list: a log message is a dict"),
+    ("0", {}, "log time t='0'"), (True, {}, "log time t=True"), (0.0, [1, 2], "payload list: a log message is a dict"),
 ])
 def test_a_message_log_cannot_store_is_refused_in_the_call(tmp_path, t, payload, fragment):
     """Was struct.error or OverflowError at the flush, or (a list) a log read_log could not read back."""

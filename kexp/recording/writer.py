@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, require_number
+from ..errors import ConfigError, is_number, require_number
 from .mcap_file import McapFile
 from .schema import CHANNELS, encode
 from .steps import log_times, prediction_message, step_messages, timing_messages
@@ -66,8 +66,8 @@ def check_settings(flush_every, prediction_every) -> None:
 def check_message(t, payload) -> None:
     """A message's log time (finite seconds >= 0: MCAP's times are unsigned nanoseconds) and payload (a dict: the
     log's messages are JSON objects); ConfigError otherwise (was struct.error or OverflowError, or a list written
-    that read_log could not read back)."""
-    if not (isinstance(t, (int, float, np.integer, np.floating)) and 0 <= t < float("inf")):
+    that read_log could not read back).  A bool is not a time: True would pass for 1 s."""
+    if not (is_number(t) and 0 <= t < float("inf")):
         raise ConfigError(f"log time t={t!r}: use a finite number of seconds >= 0")
     if not isinstance(payload, dict):
         raise ConfigError(f"payload {type(payload).__name__}: a log message is a dict (a JSON object)")
