@@ -32,11 +32,14 @@ def monomial_exponents(n: int, degree: int, *, include_constant: bool = True,
 
 @dataclass(frozen=True)
 class Monomials:
-    """Monomials of the scaled state ξ = x/scale up to (weighted) degree ``degree``.
+    """Monomials of the centred, scaled state ξ = (x − center)/scale up to (weighted) degree ``degree``.
 
     ``weights`` (default all 1) gives a weighted degree Σ w_i α_i ≤ degree, useful where a Koopman-invariant
     subspace is known (e.g. weights (1, 2) for the slow-manifold system).  ``scale`` (default 1) keeps
-    high powers of large states from ruining the conditioning of the fit.
+    high powers of large states from ruining the conditioning of the fit.  ``center`` (default the origin; the
+    app centres on the system's equilibrium) makes the dictionary the same about x_eq wherever x_eq lies: without
+    the constant, monomials of x and of x − x_eq span different spaces, and high powers of a far x_eq ruin the
+    conditioning as a large scale does.
     """
 
     n: int
@@ -44,6 +47,7 @@ class Monomials:
     include_constant: bool = True
     weights: tuple[int, ...] | None = None
     scale: tuple[float, ...] | None = None
+    center: tuple[float, ...] | None = None
     exponents: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -75,6 +79,15 @@ class Monomials:
             if len(s) != self.n or not all(np.isfinite(v) and v > 0 for v in s):
                 raise ConfigError(f"dictionary.scale={self.scale!r}: give {self.n} finite positive numbers")
             object.__setattr__(self, "scale", s)
+        if self.center is not None:
+            values = [self.center] if is_number(self.center) else self.center
+            ok = (np.iterable(values) and not isinstance(values, (str, bytes)) and len(values) in (1, self.n)
+                  and all(is_number(v) and np.isfinite(v) for v in values))
+            if not ok:
+                raise ConfigError(f"dictionary.center={self.center!r}: give {self.n} finite numbers (or one for "
+                                  "all states), or null (the origin)")
+            c = tuple(float(v) for v in values)
+            object.__setattr__(self, "center", c * self.n if len(c) == 1 else c)
         from math import comb
         n_max = comb(self.n + self.degree, self.degree)
         if self.weights is None and n_max > MAX_FUNCTIONS:
@@ -106,6 +119,10 @@ class Monomials:
     @property
     def _scale(self) -> np.ndarray:
         return np.ones(self.n) if self.scale is None else np.asarray(self.scale)
+
+    def _xi(self, x: np.ndarray) -> np.ndarray:
+        """ξ = (x − center)/scale: (M, n) -> (M, n)."""
+        return (x if self.center is None else x - np.asarray(self.center)) / self._scale
 
     def names(self, state_names: tuple[str, ...] | None = None) -> list[str]:
         s = state_names or tuple(f"x{i + 1}" for i in range(self.n))
@@ -140,7 +157,7 @@ class Monomials:
         x = self._check_x(x)
         if x.shape[0] == 1:
             return self._lift_one(x[0])[None]
-        p = self._powers(x / self._scale)
+        p = self._powers(self._xi(x))
         out = np.ones((x.shape[0], self.size))
         for i in range(self.n):
             out *= p[i, self.exponents[:, i]].T
@@ -153,11 +170,12 @@ class Monomials:
         if tables is None:   # once per instance (not in __post_init__: an unpickled instance skips it)
             e = self.exponents
             tables = (tuple(tuple(r) for r in e.tolist()), int(e.max()) if e.size else 0,
-                      self.scale or (1.0,) * self.n)
+                      self.scale or (1.0,) * self.n, self.center)
             object.__setattr__(self, "_one_state", tables)
-        rows, d, scales = tables
+        rows, d, scales, center = tables
+        x = x.tolist() if center is None else [xi - ci for xi, ci in zip(x.tolist(), center)]
         powers = []
-        for xi, si in zip(x.tolist(), scales):
+        for xi, si in zip(x, scales):
             xi = xi / si
             pw = [1.0]
             for _ in range(d):
@@ -174,7 +192,7 @@ class Monomials:
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """∂φ/∂x: (M, n) -> (M, N, n)."""
         x = self._check_x(x)
-        p = self._powers(x / self._scale)
+        p = self._powers(self._xi(x))
         factors = np.stack([p[i, self.exponents[:, i]].T for i in range(self.n)], axis=-1)  # (M, N, n)
         jac = np.empty((x.shape[0], self.size, self.n))
         for i in range(self.n):
@@ -196,7 +214,8 @@ class Monomials:
         return {"kind": "monomials", "n": int(self.n), "degree": int(self.degree),
                 "include_constant": bool(self.include_constant),
                 "weights": None if self.weights is None else list(self.weights),
-                "scale": None if self.scale is None else list(self.scale)}
+                "scale": None if self.scale is None else list(self.scale),
+                "center": None if self.center is None else list(self.center)}
 
     @classmethod
     def from_spec(cls, spec: dict) -> "Monomials":
@@ -204,4 +223,5 @@ class Monomials:
             raise ConfigError(f"dictionary kind {spec.get('kind')!r} is unknown; valid: 'monomials'")
         return cls(n=spec["n"], degree=spec["degree"], include_constant=spec["include_constant"],
                    weights=None if spec["weights"] is None else tuple(spec["weights"]),
-                   scale=None if spec["scale"] is None else tuple(spec["scale"]))
+                   scale=None if spec["scale"] is None else tuple(spec["scale"]),
+                   center=None if spec.get("center") is None else tuple(spec["center"]))   # no key: saved uncentred

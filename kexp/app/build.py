@@ -181,18 +181,29 @@ def check_file_data(dataset, ident_cfg, dictionary_size: int) -> None:
                           "or lower dictionary.degree")
 
 
-def build_dictionary(cfg: Mapping[str, Any], n: int, dataset=None) -> Monomials:
+def build_dictionary(cfg: Mapping[str, Any], n: int, dataset=None, x_eq=None) -> Monomials:
+    """The dictionary of ``cfg``: ``center: equilibrium`` is the system's ``x_eq`` (None, the origin, where x_eq is 0
+    or not given: only the size is wanted), ``scale: auto`` the data's largest |x_i − center_i|."""
     cfg = dict(_plain(cfg))
     kind = cfg.pop("kind", "monomials")
     if kind != "monomials":
         raise ConfigError(f"dictionary.kind={kind!r}; valid: 'monomials'")
+    center = cfg.get("center")
+    if isinstance(center, str):
+        if center != "equilibrium":
+            raise ConfigError(f"dictionary.center={center!r}; use 'equilibrium' (the system's x_eq), null (the "
+                              "origin) or a list of numbers")
+        eq = None if x_eq is None else np.asarray(x_eq, dtype=float)
+        cfg["center"] = None if eq is None or not np.any(eq) else tuple(eq.tolist())
+    elif isinstance(center, list):
+        cfg["center"] = tuple(center)
     scale = cfg.get("scale")
     if isinstance(scale, str):
         if scale != "auto":
             raise ConfigError(f"dictionary.scale={scale!r}; use 'auto', null, or a list of positive numbers")
         if dataset is None:
             raise ConfigError("dictionary.scale='auto' needs the data set")
-        cfg["scale"] = auto_scale(dataset)
+        cfg["scale"] = auto_scale(dataset, cfg.get("center"))
     if cfg.get("weights") is not None:
         cfg["weights"] = tuple(cfg["weights"])
     return construct(Monomials, cfg, "dictionary", n=n)

@@ -159,7 +159,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
         rms = data_rms(dataset, system.equilibrium)
         dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium).with_smoothing(data_smooth)
-        model = identify(system, dataset, build_dictionary(cfg["dictionary"], system.n, dataset), ident_cfg)
+        dictionary = build_dictionary(cfg["dictionary"], system.n, dataset, system.equilibrium)
+        model = identify(system, dataset, dictionary, ident_cfg)
         # kept with the cached model: a relative sim.noise is a fraction of these (clean data, about x_eq)
         model.report["data_rms"] = rms.tolist()
         model.report["data_noise_std"] = None if dataset.report.noise_std is None else list(

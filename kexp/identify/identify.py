@@ -102,9 +102,11 @@ def _unforced_part(dataset: PairSource) -> PairSource:
     return dataset.subset(np.flatnonzero(idle)) if idle.any() else dataset
 
 
-def auto_scale(dataset: PairSource) -> tuple[float, ...]:
-    """Per-state scale for the dictionary: the largest |x_i| over kept samples (1 where that is 0)."""
-    s = dataset.stats().absmax
+def auto_scale(dataset: PairSource, center=None) -> tuple[float, ...]:
+    """Per-state scale for the dictionary: the largest |x_i − center_i| over kept samples (center None: the
+    origin; 1 where that is 0)."""
+    st = dataset.stats()
+    s = st.absmax if center is None else np.maximum(np.abs(st.high - center), np.abs(st.low - center))
     return tuple(float(v) if v > 0 else 1.0 for v in s)
 
 

@@ -16,7 +16,8 @@ def model_summary(model) -> str:
     lines.append(f"dictionary: monomials up to degree {d.degree}"
                  f"{' (weights ' + str(d.weights) + ')' if d.weights else ''}, {d.size} functions"
                  f"{', with constant' if d.include_constant else ', no constant'}"
-                 f"{', scale ' + str(tuple(round(s, 4) for s in d.scale)) if d.scale else ''}")
+                 f"{', scale ' + str(tuple(round(s, 4) for s in d.scale)) if d.scale else ''}"
+                 f"{', of x − ' + str(tuple(round(c, 4) for c in d.center)) if d.center else ''}")
     for line in r.get("data", []):
         lines.append("data: " + line)
     if r:
