@@ -88,3 +88,15 @@ def test_split_by_trajectory():
         assert (0 if te is None else len(te)) == n_test, (n, holdout)
         both = np.concatenate([tr, [] if te is None else te])
         assert sorted(both.tolist()) == list(range(n)) and np.all(np.diff(tr) > 0)
+
+
+@pytest.mark.parametrize("n", [2, 3, 5])
+def test_circle_samples_lie_on_the_sphere_around_the_centre(n):
+    """Circle(radius) draws states at exactly that distance from the centre (the equilibrium), for n = 2 (angles)
+    and n > 2 (normalised Gaussian directions), and spreads them: the mean direction is far from a unit vector."""
+    center = np.arange(1.0, n + 1) * np.array([1, -1] * n)[:n]
+    x = Circle(200, 0.7).sample(center, 3)
+    assert x.shape == (200, n)
+    assert np.allclose(np.linalg.norm(x - center, axis=1), 0.7, rtol=1e-14)
+    assert np.linalg.norm((x - center).mean(axis=0)) < 0.2 * 0.7
+    assert Circle(1, 0.7).contains(x[0], center) and not Circle(1, 0.69).contains(x[0], center)

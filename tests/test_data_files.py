@@ -158,6 +158,48 @@ def _good_rows(L=30, dt=0.01):
     return [[k * dt, 0.5 + 0.01 * k, -0.5] for k in range(L)]
 
 
+def _npz_run(path: Path, t, x, u=None):
+    np.savez(path, t=t, x=x, **({} if u is None else {"u": u}))
+
+
+def test_the_sampling_check_is_relative_to_dt(tmp_path):
+    """t must step by dt within 1e-6·dt: at dt = 0.01 s a 1e-7 s slip (1e-5·dt) is refused and a 5e-9 s one
+    (5e-7·dt) kept; at dt = 10 s a 5e-6 s slip (5e-7·dt) is kept."""
+    x = np.random.default_rng(0).normal(size=(30, 2))
+    for dt, slip, ok in ((0.01, 1e-7, False), (0.01, 5e-9, True), (10.0, 5e-6, True)):
+        d = tmp_path / f"{dt}_{slip}"
+        d.mkdir()
+        t = np.arange(30) * dt
+        t[10:] += slip
+        _npz_run(d / "a.npz", t, x)
+        if ok:
+            assert read_runs(d, n=2, m=1, dt=dt).valid.all()
+        else:
+            with pytest.raises(DataError, match=r"irregular or mismatched sampling: t\[10\] - t\[9\]"):
+                read_runs(d, n=2, m=1, dt=dt)
+
+
+def test_a_run_whose_inputs_are_all_zero_is_unforced(tmp_path):
+    """A recorded u column of zeros is an unforced run (its windows count for the unforced quality measures);
+    streamed and in memory alike."""
+    from kexp.data import open_runs
+    x, t = np.random.default_rng(1).normal(size=(30, 2)), np.arange(30) * 0.01
+    _npz_run(tmp_path / "a.npz", t, x, np.zeros((29, 1)))
+    _npz_run(tmp_path / "b.npz", t, x, np.r_[np.zeros((28, 1)), [[0.3]]])
+    src, mem = open_runs(tmp_path, n=2, m=1, dt=0.01), read_runs(tmp_path, n=2, m=1, dt=0.01)
+    assert src.run_forced().tolist() == mem.run_forced().tolist() == [False, True]
+    assert src.forced and mem.forced
+
+
+def test_an_empty_path_is_refused(tmp_path):
+    """'' is not the current folder: a one-line ConfigError naming the argument."""
+    from kexp.data import open_runs
+    from kexp.errors import ConfigError
+    for fn in (read_runs, open_runs):
+        with pytest.raises(ConfigError, match=rf"{fn.__name__}: path='': give a path"):
+            fn("", n=2, m=1, dt=0.01)
+
+
 def _bad_files(tmp: Path):
     """(name, path to pass as data.source.path, extra overrides, fragment of the one-line message)."""
     cases = []

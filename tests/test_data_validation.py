@@ -188,6 +188,10 @@ def test_valid_collection_gives_the_same_bits_as_the_old_recipe():
 
 def test_valid_edge_values_are_still_accepted(ds, runs):
     assert DataConfig(T=3.3, dt=0.01).n_steps == 330 and DataConfig(T=1e7).n_steps == 10 ** 9
+    # T/dt just below a whole number in floating point (0.57/0.01 = 56.99999999999999) rounds, not truncates
+    assert DataConfig(T=0.57).n_steps == 57 and DataConfig(T=2.01).n_steps == 201
+    from kexp.simulate import SimConfig
+    assert SimConfig(T=0.57).n_steps == 57 and SimConfig(T=1.13, dt=0.01).n_steps == 113
     assert DataConfig(T=10.0, dt=0.03, source=DataSource(kind="files", path="runs")).dt == 0.03  # T does not apply
     assert Box(2, [-1], [1, 1]).sample(np.zeros(2), 0).shape == (2, 2)     # one bound broadcasts, as before
     assert Points(np.array([[1, 2]])).n_traj == 1 and Circle(np.int64(3), np.float64(1.0)).n_traj == 3

@@ -83,6 +83,26 @@ def test_summary_mentions_key_facts(vdp_model):
         assert needle in text
 
 
+def test_summary_table_rows_are_the_model_s_numbers(vdp_model):
+    """One row per eigenvalue block: its first coordinate j, |λ̃| the discrete eigenvalue's modulus, the
+    residual, and the input's gain on coordinate j, ‖B[:, j, :]‖ (the row: how z drives ż_j), as printed."""
+    m = vdp_model
+    lines = m.summary().splitlines()
+    rows = lines[next(i for i, ln in enumerate(lines) if "λ (continuous)" in ln) + 1:]
+    assert len(rows) == len(np.unique(m.block))
+    seen = []
+    for row in rows:
+        tok = row.split()
+        j = int(tok[0])
+        seen.append(m.block[j])
+        assert tok[-3] == f"{abs(m.discrete[j]):.5f}" and tok[-2] == f"{m.residual[j]:.2e}"
+        assert tok[-1] == f"{np.linalg.norm(m.B[:, j, :]):.3g}"
+    assert sorted(seen) == sorted(np.unique(m.block))
+    # the columns are not interchangeable on this model: the check above can tell row from column, λ̃ from λ
+    assert not np.allclose(np.linalg.norm(m.B[0], axis=1), np.linalg.norm(m.B[0], axis=0), rtol=1e-3)
+    assert not np.allclose(np.abs(m.discrete), np.abs(m.eigenvalues), rtol=1e-3)
+
+
 def test_predict_tracks_true_system_for_short_horizon():
     from kexp.data import integrate
     s = SlowManifold()
