@@ -81,6 +81,19 @@ def test_region_filter_applies_to_recorded_runs(tmp_path):
                   region_filter=RegionFilter(low=-0.45, high=0.45, mode="drop"))
 
 
+def test_a_dropped_run_s_padding_is_not_counted(tmp_path):
+    """Runs of 5, 12 and 8 samples, the 8-sample one leaving the region (mode drop): the two kept are padded to
+    12 (the longest file's length) and only their padding counts, so the report's padding is part of its masked
+    samples and both are the kept data's masked samples."""
+    x = {5: np.zeros((5, 2)), 12: np.zeros((12, 2)), 8: np.c_[np.linspace(0, 2, 8), np.zeros(8)]}
+    for L, xs in x.items():
+        np.savez(tmp_path / f"r{L:02d}.npz", t=np.arange(L) * 0.1, x=xs)
+    ds = read_runs(tmp_path, n=2, m=1, dt=0.1, region_filter=RegionFilter(high=1.0, mode="drop"))
+    r = ds.report
+    assert r.n_dropped_traj == 1 and ds.x.shape == (2, 12, 2)
+    assert r.n_padded_samples == 7 == r.n_masked_samples == int((~ds.valid).sum())
+
+
 def test_nan_rows_are_masked_and_counted(tmp_path):
     x = np.column_stack([np.linspace(0, 1, 11), np.linspace(1, 2, 11)])
     x[3, 1] = np.nan

@@ -216,7 +216,7 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
                         n_masked_samples=n_kept * t_len - count, n_dropped_traj=n_dropped, filter=flt, region=region,
                         source=f"{len(files)} {formats[0]} file(s) at {path}" + (
                             f" ({len(warnings)} log(s) cut short or unfinished: {warnings[0]})" if warnings else ""),
-                        n_nan_samples=n_nan, n_padded_samples=int(sum(t_len - s for s in all_lengths)),
+                        n_nan_samples=n_nan, n_padded_samples=int(sum(t_len - all_lengths[i] for i in kept)),
                         digest=digest.hexdigest()[:20])
     stats = tuple(SampleStats(count=count, low=low, high=high, absmax=absmax, sumsq=s, center=c)
                   for s, c in zip(sums, about))
