@@ -21,7 +21,8 @@ def _write(path, costs, *, controller, inputs="projection", noise=0.0, mismatch=
         for i, c in enumerate(costs):
             row = {k: "" for k in COLUMNS}
             ok = True if success is None else success[i]
-            row.update(x0_1=str(i / 10), x0_2="0.5", status="completed", success=str(ok), cost=repr(float(c)),
+            row.update(x0_1=str(i / 10), x0_2="0.5", status="completed", success=str(ok),
+                       cost="" if np.isnan(c) else repr(float(c)),
                        controller=controller, inputs=inputs, data_noise=repr(noise), sim_noise=repr(noise),
                        mismatch=mismatch, smoothing=smoothing)
             w.writerow([row[k] for k in COLUMNS])
@@ -50,6 +51,16 @@ def test_ratios_against_the_oracle_under_the_same_conditions(tmp_path):
     (tmp_path / "vdp_nmpc-noise1.csv").unlink()
     lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
     assert lines[4] == "| vdp | regressed, data SG 21 | 1 % | nominal | 2/3 | 2.500 / 3 † | 3/3 | 2.000 / 6 † | – |"
+
+
+def test_an_oracle_run_without_a_cost_leaves_its_x0_out_of_the_ratios(tmp_path):
+    """An oracle run without a cost ('' in the CSV) or with 0 gives no ratio for its x0; the others' median and
+    worst stand (they were NaN and inf)."""
+    _write(tmp_path / "vdp_nmpc.csv", [1.0, float("nan"), 4.0, 0.0], controller="nmpc_oracle",
+           success=[True, False, True, True])
+    _write(tmp_path / "vdp_lmpc.csv", [1.1, 2.0, 4.8, 1.0], controller="lmpc")
+    assert table(sorted(tmp_path.glob("*.csv"))).splitlines()[2] == \
+        "| vdp | known | 0 | nominal | 4/4 | 1.150 / 1.2 | – | – | 3/4 |"
 
 
 def test_old_csvs_without_columns_count_as_unperturbed(tmp_path):

@@ -73,7 +73,9 @@ def _cell(runs: dict | None, oracle: dict | None) -> tuple[str, str]:
     succ = f"{sum(s for s, _ in runs.values())}/{len(runs)}"
     if oracle is None:
         return succ, "no oracle"
-    ratios = np.array([c / oracle[x][1] for x, (s, c) in runs.items() if x in oracle and np.isfinite(c)])
+    # an x0 counts where both costs are finite and the oracle's is > 0 (a failed oracle run has none to compare)
+    ratios = np.array([c / oracle[x][1] for x, (s, c) in runs.items()
+                       if x in oracle and np.isfinite(c) and np.isfinite(oracle[x][1]) and oracle[x][1] > 0])
     if ratios.size == 0:
         return succ, "–"
     return succ, f"{np.median(ratios):.3f} / {ratios.max():.3g}"
