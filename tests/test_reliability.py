@@ -94,6 +94,12 @@ def test_bad_input_is_refused_early_with_one_line(override, fragment, tmp_path):
     # a sweep's master config (its overrides that are not swept) composed as Hydra composes it, before any job
     (["-m", "system=nope"], "Could not find 'system/nope' Available options in 'system': duffing linear"),
     (["-m", "+experiment=nope", "sim.T=1,2"], "Could not find 'experiment/nope'"),
+    # a key below a node that this choice leaves null (OmegaConf raised a bare AssertionError: a traceback)
+    (["controller=lqr", "controller.lmpc.horizon=20"],
+     "controller.lmpc.horizon=20: controller.lmpc is null in this config (this controller is kind 'lqr'), so it "
+     "has no keys to set; drop the override, or choose a controller that has controller.lmpc"),
+    (["controller=sontag", "sim.T=2", "controller.lmpc.blocks=null"],
+     "controller.lmpc.blocks=null: controller.lmpc is null in this config (this controller is kind 'explicit')"),
 ])
 def test_composition_errors_are_one_line_exit_2(argv, fragment, capsys):
     with pytest.raises(SystemExit) as ex:

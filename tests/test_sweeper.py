@@ -2,6 +2,8 @@
 bad group choice in any job still stops the sweep before the first job starts."""
 import subprocess
 
+import pytest
+
 from kexp.app.sweeper import install, representatives, structure_of
 
 from test_sweep import _kexp_multirun
@@ -48,6 +50,24 @@ def test_a_bad_group_choice_in_a_later_job_stops_the_sweep_before_any_job(tmp_pa
     assert err[-1].startswith("kexp: error: In 'config': Could not find 'controller/nosuch' Available options in "
                               "'controller': lie_gain lmpc lqr model_lqr nmpc sontag"), err
     assert err[-1].endswith("(the sweep's jobs with controller=nosuch; no job started)"), err
+    assert not list(sweep.glob("*/summary.json"))
+
+
+@pytest.mark.parametrize("swept,override,where", [
+    (["controller=lqr", "controller.lmpc.horizon=20,30"], "controller.lmpc.horizon=20,30", "(no job started)"),
+    (["controller=lmpc,lqr", "controller.lmpc.horizon=20"], "controller.lmpc.horizon=20",
+     "(the sweep's jobs with controller=lqr; no job started)")])
+def test_a_key_a_job_s_choice_leaves_null_stops_the_sweep_with_one_line(tmp_path, swept, override, where):
+    """controller.lmpc.horizon with controller=lqr (no lmpc node): in the sweep's master config, or in the check of
+    each job structure, one line naming the override and the choice, exit code 2, no job (was OmegaConf's
+    AssertionError, a traceback)."""
+    sweep = tmp_path / "sweep"
+    proc = _kexp_multirun(tmp_path, sweep, *swept)
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert err == [f"kexp: error: {override}: controller.lmpc is null in this config (this controller is kind 'lqr'), "
+                   f"so it has no keys to set; drop the override, or choose a controller that has controller.lmpc "
+                   f"{where}"]
     assert not list(sweep.glob("*/summary.json"))
 
 

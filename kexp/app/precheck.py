@@ -85,7 +85,7 @@ def _compose_or_exit(overrides: list[str]) -> None:
     def compose_it():
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
             compose(config_name="config", overrides=overrides)
-    _one_line_or_exit(compose_it)
+    _one_line_or_exit(compose_it, overrides=overrides)
 
 
 def _compose_master_or_exit(overrides: list[str]) -> None:
@@ -101,12 +101,13 @@ def _compose_master_or_exit(overrides: list[str]) -> None:
     JobRuntime.instance().set("name", "kexp")
     loader = ConfigLoaderImpl(config_search_path=create_config_search_path(CONF_DIR))
     _one_line_or_exit(lambda: loader.load_configuration("config", overrides=overrides, run_mode=RunMode.MULTIRUN),
-                      " (no job started)")
+                      " (no job started)", overrides=overrides)
 
 
-def _one_line_or_exit(compose_it, suffix: str = "") -> None:
-    """Run ``compose_it``; a config file that is not YAML, or a composition error, is one line on stderr (with
-    ``suffix``; a YAML error names the file and where) and exit code 2."""
+def _one_line_or_exit(compose_it, suffix: str = "", overrides: list[str] = ()) -> None:
+    """Run ``compose_it``; a config file that is not YAML, a composition error, or one of ``overrides`` setting a
+    key below a node that is null in this config, is one line on stderr (with ``suffix``; a YAML error names the
+    file and where) and exit code 2."""
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
     from yaml import YAMLError
@@ -118,6 +119,45 @@ def _one_line_or_exit(compose_it, suffix: str = "") -> None:
     except (HydraException, OmegaConfBaseException, ValueError) as exc:
         print(f"kexp: error: {composition_error_line(exc)}{suffix}", file=sys.stderr)
         sys.exit(2)
+    except AssertionError:   # OmegaConf's "Unexpected type for root: NoneType", raised through Hydra as it is
+        found = null_parent(overrides)
+        if found is None:
+            raise
+        print(f"kexp: error: {null_parent_line(*found)}{suffix}", file=sys.stderr)
+        sys.exit(2)
+
+
+def null_parent(overrides) -> tuple[str, str, dict] | None:
+    """(override, its parent key that is null, the group choices) for the first of ``overrides`` that sets a key
+    below a node that is null in the config composed with the group choices alone, e.g. controller.lmpc.horizon=20
+    with controller=lqr (whose controller.lmpc is null); None if there is none."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra._internal.utils import create_config_search_path
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+    keys = [(o, o.split("=", 1)[0].lstrip("+~")) for o in overrides if "=" in o]
+    choices = [o for o, k in keys if "." not in k or k.startswith("hydra.")]
+    try:   # Hydra's loader, not compose(): inside a sweep Hydra is already initialised
+        loader = ConfigLoaderImpl(config_search_path=create_config_search_path(CONF_DIR))
+        cfg = loader.load_configuration("config", overrides=choices, run_mode=RunMode.RUN)
+    except Exception:   # noqa: BLE001 — the caller re-raises the original error
+        return None
+    for o, key in keys:
+        parts = key.split(".")
+        for i in range(1, len(parts)):
+            parent = ".".join(parts[:i])
+            if OmegaConf.select(cfg, parent, default="<missing>") is None:
+                group = parts[0]
+                return o, parent, {group: OmegaConf.select(cfg, f"{group}.kind", default=None)}
+    return None
+
+
+def null_parent_line(override: str, parent: str, choice: dict) -> str:
+    """One line for :func:`null_parent`'s finding."""
+    group, kind = next(iter(choice.items()))
+    which = f" (this {group} is kind {kind!r})" if kind else ""
+    return (f"{override}: {parent} is null in this config{which}, so it has no keys to set; drop the override, or "
+            f"choose a {group} that has {parent}")
 
 
 def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:
