@@ -5,7 +5,7 @@ survives ("survives": an equivalent change, or one no test can see); the audit e
 be caught survives (a test that cannot fail, or code no test checks) or one expected to survive is caught (update
 its entry).  Not part of the suite (minutes, not seconds): run it at a stop that touches the tests or the core.
 
-    python tests/mutation_audit.py [ID ...]        # all mutations, or those named; ~30 min on 2 cores
+    python tests/mutation_audit.py [ID ...]        # all mutations, or those named; ~20 min on 2 cores
 
 tests/test_mutation_list.py keeps the list valid as the code changes (each change applies to exactly one place).
 """
