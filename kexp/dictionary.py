@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .data.checks import items
 from .errors import ConfigError, is_number
 
 MAX_FUNCTIONS = 5000
@@ -80,10 +81,8 @@ class Monomials:
                 raise ConfigError(f"dictionary.scale={self.scale!r}: give {self.n} finite positive numbers")
             object.__setattr__(self, "scale", s)
         if self.center is not None:
-            values = [self.center] if is_number(self.center) else self.center
-            ok = (np.iterable(values) and not isinstance(values, (str, bytes)) and len(values) in (1, self.n)
-                  and all(is_number(v) and np.isfinite(v) for v in values))
-            if not ok:
+            values = items(self.center)   # a number or a flat list of numbers (not bools, not strings)
+            if not values or len(values) not in (1, self.n) or not np.all(np.isfinite(values)):
                 raise ConfigError(f"dictionary.center={self.center!r}: give {self.n} finite numbers (or one for "
                                   "all states), or null (the origin)")
             c = tuple(float(v) for v in values)

@@ -195,8 +195,6 @@ def build_dictionary(cfg: Mapping[str, Any], n: int, dataset=None, x_eq=None) ->
                               "origin) or a list of numbers")
         eq = None if x_eq is None else np.asarray(x_eq, dtype=float)
         cfg["center"] = None if eq is None or not np.any(eq) else tuple(eq.tolist())
-    elif isinstance(center, list):
-        cfg["center"] = tuple(center)
     scale = cfg.get("scale")
     if isinstance(scale, str):
         if scale != "auto":
