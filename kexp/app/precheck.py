@@ -120,17 +120,17 @@ def _one_line_or_exit(compose_it, suffix: str = "", overrides: list[str] = ()) -
         print(f"kexp: error: {composition_error_line(exc)}{suffix}", file=sys.stderr)
         sys.exit(2)
     except AssertionError:   # OmegaConf's "Unexpected type for root: NoneType", raised through Hydra as it is
-        found = null_parent(overrides)
-        if found is None:
+        line = null_node_line(overrides)
+        if line is None:
             raise
-        print(f"kexp: error: {null_parent_line(*found)}{suffix}", file=sys.stderr)
+        print(f"kexp: error: {line}{suffix}", file=sys.stderr)
         sys.exit(2)
 
 
-def null_parent(overrides) -> tuple[str, str, dict] | None:
-    """(override, its parent key that is null, the group choices) for the first of ``overrides`` that sets a key
-    below a node that is null in the config composed with the group choices alone, e.g. controller.lmpc.horizon=20
-    with controller=lqr (whose controller.lmpc is null); None if there is none."""
+def null_node_line(overrides) -> str | None:
+    """One line for the first of ``overrides`` that sets a key below a node that is null in the config composed
+    with the group choices alone, e.g. controller.lmpc.horizon=20 with controller=lqr (whose controller.lmpc is
+    null); None if there is none."""
     from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra._internal.utils import create_config_search_path
     from hydra.types import RunMode
@@ -148,16 +148,11 @@ def null_parent(overrides) -> tuple[str, str, dict] | None:
             parent = ".".join(parts[:i])
             if OmegaConf.select(cfg, parent, default="<missing>") is None:
                 group = parts[0]
-                return o, parent, {group: OmegaConf.select(cfg, f"{group}.kind", default=None)}
+                kind = OmegaConf.select(cfg, f"{group}.kind", default=None)
+                which = f" (this {group} is kind {kind!r})" if kind else ""
+                return (f"{o}: {parent} is null in this config{which}, so it has no keys to set; drop the override, "
+                        f"or choose a {group} that has {parent}")
     return None
-
-
-def null_parent_line(override: str, parent: str, choice: dict) -> str:
-    """One line for :func:`null_parent`'s finding."""
-    group, kind = next(iter(choice.items()))
-    which = f" (this {group} is kind {kind!r})" if kind else ""
-    return (f"{override}: {parent} is null in this config{which}, so it has no keys to set; drop the override, or "
-            f"choose a {group} that has {parent}")
 
 
 def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:

@@ -57,18 +57,20 @@ def install() -> None:
         from hydra.errors import HydraException
         from omegaconf.errors import OmegaConfBaseException
 
-        from .precheck import composition_error_line, null_parent, null_parent_line
+        from .precheck import composition_error_line, null_node_line
         for job in representatives(batch):
             try:
                 check_all(self, [job])
-            except (HydraException, OmegaConfBaseException, AssertionError) as exc:
-                found = null_parent(list(job)) if isinstance(exc, AssertionError) else None
-                if isinstance(exc, AssertionError) and found is None:
+                continue
+            except (HydraException, OmegaConfBaseException) as exc:
+                line = composition_error_line(exc)
+            except AssertionError:   # OmegaConf's, for a key below a null node (kexp.app.precheck)
+                line = null_node_line(list(job))
+                if line is None:
                     raise
-                choices = " ".join(o for o in job if structure_of(o) == o)   # what decided its composition
-                line = null_parent_line(*found) if found else composition_error_line(exc)
-                print(f"kexp: error: {line} (the sweep's jobs with {choices}; no job started)", file=sys.stderr)
-                sys.exit(2)
+            choices = " ".join(o for o in job if structure_of(o) == o)   # what decided its composition
+            print(f"kexp: error: {line} (the sweep's jobs with {choices}; no job started)", file=sys.stderr)
+            sys.exit(2)
 
     validate_batch_is_legal._kexp = True
     BasicSweeper.validate_batch_is_legal = validate_batch_is_legal
