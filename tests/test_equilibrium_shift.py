@@ -8,10 +8,7 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
-
 from kexp.app.build import build_dictionary
-from kexp.app.conf import CONF_DIR
 from kexp.app.experiment import run
 from kexp.control.oracle import register_symbolic
 from kexp.data import Box, DataConfig, collect
@@ -21,6 +18,8 @@ from kexp.errors import ConfigError
 from kexp.identify import IdentifyConfig, identify
 from kexp.identify.quality import prediction_error
 from kexp.systems import ControlAffineSystem, VanDerPol
+
+from test_app import _compose
 
 C = (1.0, -0.5)
 
@@ -160,9 +159,7 @@ SMALL = ["data.sampler.n_traj=40", "data.T=4.0", "sim.T=8.0", "logging.rrd=false
 
 
 def _run(overrides, tmp_path):
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["+experiment=vanderpol", *SMALL, *overrides])
-    return run(cfg, tmp_path, echo=lambda line: None)
+    return run(_compose(["+experiment=vanderpol", *SMALL, *overrides]), tmp_path, echo=lambda line: None)
 
 
 X0 = np.array([1.5, -1.2])

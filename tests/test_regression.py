@@ -139,8 +139,9 @@ class _SquaredGain(ControlAffineSystem):
 
 def test_the_assumption_1_residual_is_the_relative_miss_of_the_projection():
     """The reported residual is ‖L_GΨ − [Ψ, 1]·B'ᵀ‖ / ‖L_GΨ‖ over the training data, with B' the least-squares
-    projection: computed apart with numpy's lstsq on the stacked samples it agrees to 1e-9 (measured: to the last bit here).  Most
-    of the miss lies outside the dictionary's span (degree-6 terms), which the residual has to include."""
+    projection: computed apart with numpy's lstsq on the stacked samples it agrees to 1e-9 (measured: to the last
+    bit here).  Most of the miss lies outside the dictionary's span (degree-6 terms), which the residual has to
+    include."""
     s = _SquaredGain()
     data = collect(s, Box(20, -1.5, 1.5), DataConfig(T=2.0))
     d = Monomials(2, 3, include_constant=False)
