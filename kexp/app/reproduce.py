@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import is_number
 from .aggregate import ReportError
 from .results import read_csv
 
@@ -49,7 +50,7 @@ def _known_x0() -> dict:
 def sample(path: str | Path, n: int) -> list[tuple[float, float]]:
     """``n`` x0 of a results CSV, evenly spaced over its rows (all of them if it has fewer), each the row
     scripts' full-precision x0 where the CSV's is one of theirs, else the CSV's own digits."""
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+    if not (is_number(n, integer=True) and n >= 1):
         raise ReportError(f"sample size {n!r}: give a whole number >= 1")
     rows = read_csv(path)
     idx = np.unique(np.linspace(0, len(rows) - 1, min(n, len(rows))).round().astype(int))
@@ -135,7 +136,7 @@ def compare(committed: str | Path, new: str | Path, rtol: float = 1e-6) -> Compa
     """Each run of the ``new`` CSV against the ``committed`` run of the same x0 (to the CSVs' 10 digits):
     :class:`Comparison`.  ReportError when the two files' names (rows) differ, a new x0 is not among the
     committed ones, or ``rtol`` is not a finite number >= 0."""
-    if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not 0 <= rtol < math.inf:
+    if not (is_number(rtol) and 0 <= rtol < math.inf):
         raise ReportError(f"--rtol {rtol!r}: give a finite number >= 0")
     if Path(committed).stem != Path(new).stem:
         raise ReportError(f"{committed} and {new}: rows of two names; compare a re-run of a row with the committed "
