@@ -119,6 +119,23 @@ def test_valid_csvs_still_give_the_tables(tmp_path, capsys):
     assert code == 0 and err == [] and "| vdp | known | 0 | nominal | 1/3 |" in out
 
 
+def test_a_system_name_may_hold_an_underscore(tmp_path, capsys):
+    """<system>_<configuration>: the configuration follows the last underscore (cart_pendulum_lmpc is the system
+    cart_pendulum); before, the first one split it, so the row's system was 'cart' and its oracle was not found."""
+    from kexp.app.results import split_name
+    assert split_name("results/cart_pendulum_lmpc-reg.csv") == ("cart_pendulum", "lmpc-reg")
+    assert split_name("x/pendulum-u0.5_nmpc.csv") == ("pendulum-u0.5", "nmpc")
+    lmpc = _write(tmp_path / "my_rig_lmpc.csv")
+    oracle = _write(tmp_path / "my_rig_nmpc.csv", [_row(i, controller="nmpc_oracle", cost=str(0.5 + 0.5 * i))
+                                                   for i in range(3)])
+    code, out, err = _run(capsys, "table", lmpc, oracle)
+    assert code == 0 and "| my_rig | lmpc | 3/3 | 2.000 | 3.000 | 2.000 | 2.000 |" in out
+    code, out, err = _run(capsys, "robustness", lmpc, oracle)
+    assert code == 0 and "| my_rig | known | 0 | nominal | 3/3 | 2.000 / 2 | – | – | 3/3 |" in out, out
+    code, text, err = _run(capsys, "collect", _sweep(tmp_path / "sweep"), "my_rig_lmpc", "-o", tmp_path / "c")
+    assert code == 0 and (tmp_path / "c" / "my_rig_lmpc.csv").exists()
+
+
 def _sweep(root):
     """A sweep folder of two jobs as kexp writes them (summary.json, .hydra/overrides.yaml)."""
     for i, (x0, cost) in enumerate((([0.5, 0.5], 1.5), ([-0.5, 0.2], 2.5))):

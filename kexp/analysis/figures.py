@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..app.results import oserror
+from ..app.results import oserror, split_name
 from ..cli import Parser
 from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, read_log
@@ -254,7 +254,7 @@ def _check_sources(args) -> None:
             raise FigureError(f"roa takes one sweep folder, or results CSVs with --oracle, not both: {others[0]} "
                               "is not a .csv")
         if not args.oracle:
-            system = Path(csvs[0]).stem.partition("_")[0]
+            system = split_name(csvs[0])[0]
             raise FigureError(f"--oracle is missing: a region map from results CSVs needs the oracle's CSV over the "
                               f"same x0, e.g. --oracle {Path(csvs[0]).with_name(f'{system}_nmpc.csv')}")
     elif args.kind == "roa" and args.oracle:

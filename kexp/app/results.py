@@ -32,17 +32,19 @@ TABLE_NEEDED = NEEDED + ("settling_time_s", "solve_median_ms", "solve_p99_ms", "
 NUMERIC = ("x0_1", "x0_2", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms", "max_abs_u", "fallbacks",
            "data_noise", "sim_noise")            # '' (unknown) or a finite number; settling_time_s may be 'inf'
 SUCCESS = ("True", "False", "")                  # what collect writes: the run's success, '' when it has none
-NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9.+-]*_[A-Za-z0-9.+-][A-Za-z0-9._+-]*")
+# <system>_<configuration>: the configuration is what follows the last "_" (a system may be named cart_pendulum)
+NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*_[A-Za-z0-9.+-]+")
 HINT = "pass a results CSV written by kexp-results collect"
 
 
 def split_name(path: str | Path) -> tuple[str, str]:
-    """(system, configuration) of a results CSV named ``<system>_<configuration>.csv``; ReportError otherwise."""
+    """(system, configuration) of a results CSV named ``<system>_<configuration>.csv`` (the configuration follows the
+    last underscore, so a system's name may hold one: cart_pendulum_lmpc); ReportError otherwise."""
     stem = Path(path).stem
     if not NAME.fullmatch(stem):
         raise ReportError(f"{path}: the file name is not <system>_<configuration>.csv (e.g. pendulum_lmpc.csv); "
                           "rename it so that the system and the configuration can be read from it")
-    system, _, config = stem.partition("_")
+    system, _, config = stem.rpartition("_")
     return system, config
 
 
@@ -107,7 +109,7 @@ def read_csv(path: str | Path, needed=NEEDED) -> list[dict]:
 def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
     if not NAME.fullmatch(name):
         raise ReportError(f"NAME {name!r}: give <system>_<configuration>, e.g. pendulum_lmpc (letters, digits, "
-                          "'.', '+', '-'; no path: choose the folder with -o)")
+                          "'.', '+', '-'; no '_' in the configuration; no path: choose the folder with -o)")
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ReportError(f"-o {out_dir}: is a file; give the folder to write {name}.csv into")
@@ -154,7 +156,7 @@ def table(paths: list[str | Path]) -> str:
              "| median settling [s] | solve median / p99 [ms] | certificate |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for name, rows in data.items():
-        system, _, config = name.partition("_")
+        system, config = split_name(f"{name}.csv")
         oracle = {(r["x0_1"], r["x0_2"]): _f(r["cost"]) for r in data.get(f"{system}_nmpc", [])}
         ok = [r for r in rows if r["status"] == "completed"]
         succ = sum(r["success"] == "True" for r in rows)

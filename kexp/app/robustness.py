@@ -28,7 +28,8 @@ def _conditions(name: str, row: dict) -> tuple:
     """The run's conditions; its configuration is the file name's (<system>_<configuration>): one that does not
     start with a controller kind (e.g. paper-lmpc, the paper's preset) is no row of this table, whatever
     controller its runs used (a paper-lmpc CSV in today's columns says controller lmpc, as the working preset's)."""
-    configured = name.partition("_")[2].split("-")[0]
+    from .results import split_name
+    configured = split_name(f"{name}.csv")[1].split("-")[0]
     controller = configured if configured not in KINDS else (row.get("controller") or configured)
     controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
     return (controller, row.get("inputs") or "projection", round(_f(row.get("sim_noise") or 0.0), 6),
