@@ -11,20 +11,21 @@
 #
 # Row names: <system>[-uN]_<controller>: the working preset +experiment=<system>; -uN: the input bound |u| ≤ N
 # (controller.u_min=-N, controller.u_max=N) for every controller of the row, oracle included; controller lmpc
-# (the preset's), lqr (saturated LQR on the true linearisation) or nmpc (the true-model oracle, horizon 20).
+# (the preset's), lqr (saturated LQR on the true linearisation) or nmpc (the true-model oracle, oracle_horizon in
+# results/sweep_lib.sh: 20 steps, 100 for cart_pendulum).
 # The table: kexp-results table results/regions/*.csv; the maps: kexp-figures roa ... --oracle ..._nmpc.csv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source results/sweep_lib.sh
 
 overrides() {  # ROW -> the kexp overrides of that row
-    local row=$1 head=${1%%_*} ctrl=${1#*_}
+    local row=$1 head=${1%_*} ctrl=${1##*_}
     local system=${head%%-*} out=()
     out+=("+experiment=$system")
     case $ctrl in
         lmpc) ;;
         lqr) out+=(controller=lqr) ;;
-        nmpc) out+=(controller=nmpc controller.horizon=20) ;;
+        nmpc) out+=(controller=nmpc "controller.horizon=$(oracle_horizon "$system")") ;;
         *) echo "unknown controller in row $row" >&2; return 2 ;;
     esac
     if [[ $head == *-u* ]]; then

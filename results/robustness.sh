@@ -20,14 +20,14 @@ cd "$(dirname "$0")/.."
 source results/sweep_lib.sh
 
 overrides() {  # ROW -> the kexp overrides of that row
-    local row=$1 system=${1%%_*} rest=${1#*_}
+    local row=$1 system=${1%_*} rest=${1##*_}
     local ctrl=${rest%%-*} out=("+experiment=$system")
     [[ $rest == paper-lmpc* ]] && ctrl=paper-lmpc      # the paper's recipe, +experiment=paper_<system>
     case $ctrl in
         lmpc) ;;
         paper-lmpc) out=("+experiment=paper_$system") ;;
         lqr) out+=(controller=lqr) ;;
-        nmpc) out+=(controller=nmpc controller.horizon=20) ;;
+        nmpc) out+=(controller=nmpc "controller.horizon=$(oracle_horizon "$system")") ;;
         *) echo "unknown controller in row $row" >&2; return 2 ;;
     esac
     local tok smooth=0 raw=0 win=7

@@ -43,7 +43,7 @@ def register_symbolic(cls: type, fn: Callable) -> None:
 
 
 def _register_builtin() -> None:
-    from ..systems.library import Duffing, Linear, Pendulum, SlowManifold, VanDerPol
+    from ..systems.library import CartPendulum, Duffing, Linear, Pendulum, SlowManifold, VanDerPol
 
     def vdp(s, x):
         ca = _casadi()
@@ -63,11 +63,16 @@ def _register_builtin() -> None:
 
     def slow(s, x):
         ca = _casadi()
-        G = np.array([[0.0], [1.0]]) if s.inputs == "x2" else np.eye(2)
+        G = {"x2": np.array([[0.0], [1.0]]), "both": np.eye(2), "x2_varying": ca.vertcat(0, 1 + x[0])}[s.inputs]
         return ca.vertcat(s.mu * x[0], s.lam * (x[1] - x[0] ** 2)), G
 
+    def cart_pendulum(s, x):
+        ca = _casadi()
+        return (ca.vertcat(x[1], s.g_over_l * ca.sin(x[0]) - s.damping * x[1]),
+                ca.vertcat(0, -ca.cos(x[0]) / s.length))
+
     for cls, fn in ((VanDerPol, vdp), (Pendulum, pendulum), (Duffing, duffing), (Linear, linear),
-                    (SlowManifold, slow)):
+                    (SlowManifold, slow), (CartPendulum, cart_pendulum)):
         register_symbolic(cls, fn)
 
 

@@ -125,6 +125,47 @@ class Duffing(ControlAffineSystem):
 
 
 @dataclass(frozen=True)
+class CartPendulum(ControlAffineSystem):
+    """An inverted pendulum on a cart whose acceleration is the input:  ẋ1 = x2,
+    ẋ2 = (g/l)·sin(x1) − d·x2 − cos(x1)·u/l,  x1 the angle from upright.  The origin is a saddle (eigenvalues
+    ≈ +0.95 and −1.05 with the defaults), and G = [0, −cos(x1)/l]ᵀ varies with the state: the input loses its grip
+    as the pendulum tilts and acts the other way past the horizontal (|x1| > π/2), so L_G of a polynomial dictionary
+    leaves its span (Assumption 1 holds only approximately).  x1 is an angle of period 2π."""
+
+    g_over_l: float = 1.0
+    length: float = 1.0
+    damping: float = 0.1
+    name: ClassVar[str] = "cart_pendulum"
+    n: ClassVar[int] = 2
+    m: ClassVar[int] = 1
+
+    def __post_init__(self):
+        _require_finite(self, "g_over_l", "length", "damping")
+        if self.length <= 0:
+            raise SystemDefinitionError(f"system 'cart_pendulum': length={self.length!r}; use a length > 0 "
+                                        "(system.params.length)")
+
+    def drift(self, x):
+        x = np.asarray(x, dtype=float)
+        x1, x2 = x[..., 0], x[..., 1]
+        return _pair(x2, self.g_over_l * np.sin(x1) - self.damping * x2)
+
+    def input_matrix(self, x):
+        x = np.asarray(x, dtype=float)
+        g = np.zeros(x.shape[:-1] + (2, 1))
+        g[..., 1, 0] = -np.cos(x[..., 0]) / self.length
+        return g
+
+    @property
+    def state_names(self):
+        return ("theta", "omega")
+
+    @property
+    def angle_period(self):
+        return (2 * np.pi, None)
+
+
+@dataclass(frozen=True)
 class Linear(ControlAffineSystem):
     """ẋ = A x + B u.  Its Koopman eigenvalues on monomials of degree ≤ d are the sums of ≤ d eigenvalues of A."""
 
@@ -166,7 +207,9 @@ class SlowManifold(ControlAffineSystem):
     eigenvalues {0, μ, λ, 2μ} and eigenfunctions 1, x1, x1², x2 − λ/(λ − 2μ)·x1².  More generally, monomials
     x1^a x2^b with a + 2b ≤ d (weighted degree, weights (1, 2)) span an invariant subspace.
 
-    ``inputs``: "x2" (G = [0, 1]ᵀ, m = 1) or "both" (G = I, m = 2); either keeps L_G of the invariant span inside it.
+    ``inputs``: "x2" (G = [0, 1]ᵀ, m = 1), "both" (G = I, m = 2) or "x2_varying" (G = [0, 1 + x1]ᵀ, m = 1, a G
+    that varies with the state); each keeps L_G of the invariant span inside it (L_G x1^a x2^b = b(1 + x1) x1^a
+    x2^(b-1) lowers the weighted degree), so the bilinear model is exact on it.
     """
 
     mu: float = -0.3
@@ -178,14 +221,18 @@ class SlowManifold(ControlAffineSystem):
 
     def __post_init__(self):
         _require_finite(self, "mu", "lam")
-        if self.inputs not in ("x2", "both"):
-            raise SystemDefinitionError(f"slow_manifold: inputs={self.inputs!r}; use 'x2' or 'both'")
+        if self.inputs not in ("x2", "both", "x2_varying"):
+            raise SystemDefinitionError(f"slow_manifold: inputs={self.inputs!r}; use 'x2', 'both' or 'x2_varying'")
         if abs(self.lam - 2 * self.mu) < 1e-12:
             raise SystemDefinitionError("slow_manifold: lam must differ from 2*mu (resonance)")
 
     @property
     def m(self):  # type: ignore[override]
-        return 1 if self.inputs == "x2" else 2
+        return 2 if self.inputs == "both" else 1
+
+    @property
+    def constant_input_matrix(self):  # type: ignore[override]
+        return self.inputs != "x2_varying"
 
     def drift(self, x):
         x = np.asarray(x, dtype=float)
@@ -193,8 +240,12 @@ class SlowManifold(ControlAffineSystem):
         return _pair(self.mu * x1, self.lam * (x2 - x1**2))
 
     def input_matrix(self, x):
-        g = np.array([[0.0], [1.0]]) if self.inputs == "x2" else np.eye(2)
-        return _const_input(x, g)
+        if self.inputs == "x2_varying":
+            x = np.asarray(x, dtype=float)
+            g = np.zeros(x.shape[:-1] + (2, 1))
+            g[..., 1, 0] = 1.0 + x[..., 0]
+            return g
+        return _const_input(x, np.array([[0.0], [1.0]]) if self.inputs == "x2" else np.eye(2))
 
     def eigenpairs(self):
         """Exact continuous eigenvalues and eigenfunction coefficients on the basis [1, x1, x2, x1²]."""

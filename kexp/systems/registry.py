@@ -6,10 +6,10 @@ from typing import Any, Mapping
 
 from ..errors import SystemDefinitionError
 from .base import ControlAffineSystem, check_system
-from .library import Duffing, Linear, Pendulum, SlowManifold, VanDerPol
+from .library import CartPendulum, Duffing, Linear, Pendulum, SlowManifold, VanDerPol
 
 SYSTEMS: dict[str, type[ControlAffineSystem]] = {
-    cls.name: cls for cls in (VanDerPol, Pendulum, Duffing, Linear, SlowManifold)
+    cls.name: cls for cls in (VanDerPol, Pendulum, Duffing, Linear, SlowManifold, CartPendulum)
 }
 
 
