@@ -103,3 +103,11 @@ def test_committed_region_map_table_is_the_readmes():
     assert all(sum(1 for _ in open(c)) == 401 for c in csvs)      # 400 x0 and the header
     assert table(csvs).strip() == committed.read_text().strip()
     assert committed.read_text().strip() in (root / "README.md").read_text()
+
+
+def test_a_panel_is_labelled_by_system_and_configuration():
+    """The configuration follows the last '_' (kexp.app.results.split_name): a system may be named cart_pendulum."""
+    from pathlib import Path
+    from kexp.analysis.region_map import _label
+    assert _label(Path("r/cart_pendulum_lmpc-reg.csv")) == "cart_pendulum: lmpc-reg"
+    assert _label(Path("r/pendulum-u0.5_nmpc.csv")) == "pendulum-u0.5: nmpc"

@@ -85,7 +85,8 @@ def state_names(system: str) -> tuple[str, str]:
 
 
 def _label(path: Path) -> str:
-    return path.stem.replace("_", ": ", 1)
+    """'system: configuration' of a results CSV (cart_pendulum_lmpc.csv -> 'cart_pendulum: lmpc')."""
+    return ": ".join(split_name(path))
 
 
 def region_map(csvs: list[str | Path], oracle: str | Path, out: str | Path, *, vmax: float = VMAX
