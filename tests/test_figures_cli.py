@@ -103,6 +103,8 @@ def test_options_and_sources_a_kind_does_not_take(run_dir, tmp_path, capsys):
     lmpc = _csv(tmp_path / "vdp_lmpc.csv")
     _refused(capsys, f"--oracle is missing: a region map from results CSVs needs the oracle's CSV over the same x0, "
                      f"e.g. --oracle {oracle}", "roa", lmpc, "-o", png)
+    noname = _csv(tmp_path / "noname.csv")        # was a traceback (split_name's ReportError went uncaught)
+    _refused(capsys, f"{noname}: the file name is not <system>_<configuration>.csv", "roa", noname, "-o", png)
     assert not png.exists()
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..app.aggregate import ReportError
 from ..app.results import oserror, split_name
 from ..cli import Parser
 from ..errors import KexpError, SystemDefinitionError
@@ -202,7 +203,7 @@ def main(argv=None) -> None:
     try:
         _check_sources(args)
         out = out_path(args.out)
-    except FigureError as exc:
+    except (FigureError, ReportError) as exc:      # ReportError: a CSV name that is not <system>_<configuration>
         _fail(str(exc))
     source = args.source[0]
     try:

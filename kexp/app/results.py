@@ -44,6 +44,11 @@ def split_name(path: str | Path) -> tuple[str, str]:
     if not NAME.fullmatch(stem):
         raise ReportError(f"{path}: the file name is not <system>_<configuration>.csv (e.g. pendulum_lmpc.csv); "
                           "rename it so that the system and the configuration can be read from it")
+    return split_stem(stem)
+
+
+def split_stem(stem: str) -> tuple[str, str]:
+    """(system, configuration) of a checked name ``<system>_<configuration>``: split at the last underscore."""
     system, _, config = stem.rpartition("_")
     return system, config
 
@@ -109,7 +114,7 @@ def read_csv(path: str | Path, needed=NEEDED) -> list[dict]:
 def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
     if not NAME.fullmatch(name):
         raise ReportError(f"NAME {name!r}: give <system>_<configuration>, e.g. pendulum_lmpc (letters, digits, "
-                          "'.', '+', '-'; no '_' in the configuration; no path: choose the folder with -o)")
+                          "'.', '+', '-'; the configuration follows the last '_'; no path: choose the folder with -o)")
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ReportError(f"-o {out_dir}: is a file; give the folder to write {name}.csv into")
@@ -156,7 +161,7 @@ def table(paths: list[str | Path]) -> str:
              "| median settling [s] | solve median / p99 [ms] | certificate |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for name, rows in data.items():
-        system, config = split_name(f"{name}.csv")
+        system, config = split_stem(name)
         oracle = {(r["x0_1"], r["x0_2"]): _f(r["cost"]) for r in data.get(f"{system}_nmpc", [])}
         ok = [r for r in rows if r["status"] == "completed"]
         succ = sum(r["success"] == "True" for r in rows)

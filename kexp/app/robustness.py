@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .aggregate import ReportError
+from .results import read_csv, split_name, split_stem
 
 KINDS = ("lmpc", "lqr", "nmpc")
 
@@ -28,8 +29,7 @@ def _conditions(name: str, row: dict) -> tuple:
     """The run's conditions; its configuration is the file name's (<system>_<configuration>): one that does not
     start with a controller kind (e.g. paper-lmpc, the paper's preset) is no row of this table, whatever
     controller its runs used (a paper-lmpc CSV in today's columns says controller lmpc, as the working preset's)."""
-    from .results import split_name
-    configured = split_name(f"{name}.csv")[1].split("-")[0]
+    configured = split_stem(name)[1].split("-")[0]
     controller = configured if configured not in KINDS else (row.get("controller") or configured)
     controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
     return (controller, row.get("inputs") or "projection", round(_f(row.get("sim_noise") or 0.0), 6),
@@ -41,7 +41,6 @@ def load(paths) -> dict:
     ``paths``;
     raises :class:`ReportError` when a CSV is not a results CSV (:func:`kexp.app.results.read_csv`), mixes
     conditions or two CSVs hold the same ones."""
-    from .results import read_csv, split_name
     out: dict = {}
     unique = {Path(p).resolve(): Path(p) for p in sorted(map(Path, paths), reverse=True)}  # a file given twice
     for p in sorted(unique.values()):

@@ -38,6 +38,13 @@ def _const_input(x: np.ndarray, g: np.ndarray) -> np.ndarray:
     return np.broadcast_to(g, x.shape[:-1] + g.shape).copy()
 
 
+def _on_x2(x: np.ndarray, gain: np.ndarray) -> np.ndarray:
+    """G = [0, gain(x)]ᵀ of a two-state system with one input acting on ẋ2: (..., 2, 1)."""
+    g = np.zeros(np.shape(x)[:-1] + (2, 1))
+    g[..., 1, 0] = gain
+    return g
+
+
 def _pair(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     """(..., 2) from two (...) arrays: np.stack's result in a third of its time (the integrator calls drift(x)
     about 14 times per control step)."""
@@ -151,10 +158,7 @@ class CartPendulum(ControlAffineSystem):
         return _pair(x2, self.g_over_l * np.sin(x1) - self.damping * x2)
 
     def input_matrix(self, x):
-        x = np.asarray(x, dtype=float)
-        g = np.zeros(x.shape[:-1] + (2, 1))
-        g[..., 1, 0] = -np.cos(x[..., 0]) / self.length
-        return g
+        return _on_x2(x, -np.cos(np.asarray(x, dtype=float)[..., 0]) / self.length)
 
     @property
     def state_names(self):
@@ -217,12 +221,12 @@ class SlowManifold(ControlAffineSystem):
     inputs: str = "x2"
     name: ClassVar[str] = "slow_manifold"
     n: ClassVar[int] = 2
-    constant_input_matrix: ClassVar[bool] = True
 
     def __post_init__(self):
         _require_finite(self, "mu", "lam")
         if self.inputs not in ("x2", "both", "x2_varying"):
-            raise SystemDefinitionError(f"slow_manifold: inputs={self.inputs!r}; use 'x2', 'both' or 'x2_varying'")
+            raise SystemDefinitionError(f"slow_manifold: inputs={self.inputs!r}; use 'x2', 'both' or 'x2_varying' "
+                                        "(system.params.inputs)")
         if abs(self.lam - 2 * self.mu) < 1e-12:
             raise SystemDefinitionError("slow_manifold: lam must differ from 2*mu (resonance)")
 
@@ -241,10 +245,7 @@ class SlowManifold(ControlAffineSystem):
 
     def input_matrix(self, x):
         if self.inputs == "x2_varying":
-            x = np.asarray(x, dtype=float)
-            g = np.zeros(x.shape[:-1] + (2, 1))
-            g[..., 1, 0] = 1.0 + x[..., 0]
-            return g
+            return _on_x2(x, 1.0 + np.asarray(x, dtype=float)[..., 0])
         return _const_input(x, np.array([[0.0], [1.0]]) if self.inputs == "x2" else np.eye(2))
 
     def eigenpairs(self):
