@@ -101,7 +101,7 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp
     (wheel,) = dist.glob("kexp-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     confs = {f"kexp/conf/{p.relative_to(REPO / 'conf').as_posix()}" for p in (REPO / "conf").rglob("*.yaml")}
-    assert len(confs) == 27 and confs <= names and "kexp/conf/config.yaml" in names
+    assert len(confs) == 29 and confs <= names and "kexp/conf/config.yaml" in names
     assert "kexp/app/main.py" in names and not any(n.startswith("conf/") for n in names)
 
     venv = tmp_path / "venv"
