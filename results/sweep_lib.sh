@@ -8,9 +8,9 @@ x0_list() {
 }
 
 # oracle_horizon SYSTEM: the NMPC oracle's horizon in steps.  20 (0.2 s, with the true linearisation's LQR
-# cost-to-go as terminal cost) except for cart_pendulum: there it failed to stabilise 2 of the first 10 x0 in
-# [-1, 1]² (J ≈ 92): where cos(x1) has halved the input's grip the quadratic terminal cost misjudges the state.
-# With 100 steps it stabilises all and costs the least of all controllers on each.
+# cost-to-go as terminal cost) except for cart_pendulum: there it fails to stabilise 10 of the results' 100 x0
+# in [-1, 1]² (J ≈ 20–98): where cos(x1) has halved the input's grip the quadratic terminal cost misjudges the
+# state.  With 100 steps it stabilises all and costs the least of all controllers on each.
 oracle_horizon() {
     case $1 in
         cart_pendulum) echo 100 ;;
