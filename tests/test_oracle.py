@@ -24,7 +24,7 @@ from kexp.errors import ConfigError  # noqa: E402
 from kexp.identify import identify  # noqa: E402
 from kexp.simulate.closed_loop import SimConfig, closed_loop  # noqa: E402
 from kexp.systems.base import ControlAffineSystem  # noqa: E402
-from kexp.systems.library import Duffing, Linear, Pendulum, SlowManifold, VanDerPol  # noqa: E402
+from kexp.systems.library import CartPendulum, Duffing, Linear, Pendulum, SlowManifold, VanDerPol  # noqa: E402
 
 CFG = LmpcConfig(horizon=20, blocks=None, max_iter=50, tol=1e-10)
 
@@ -204,7 +204,8 @@ def test_nmpc_fallback_and_terminal_options(vdp):
 
 
 @pytest.mark.parametrize("system", [VanDerPol(mu=0.7), Pendulum(), Duffing(), Linear(),
-                                    SlowManifold(inputs="both")])
+                                    SlowManifold(inputs="both"), SlowManifold(inputs="x2_varying"),
+                                    CartPendulum(g_over_l=1.3, length=2.0, damping=0.3)])
 def test_symbolic_models_of_shipped_systems(system):
     f = symbolic_dynamics(system)   # compares with drift/input_matrix at probe states (raises on mismatch)
     x = np.full(system.n, 0.3)
