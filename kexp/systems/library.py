@@ -76,8 +76,20 @@ class VanDerPol(ControlAffineSystem):
         return _const_input(x, np.array([[0.0], [1.0]]))
 
 
+class _AngleAndRate:
+    """The states of a pendulum: an angle (theta) of period 2π and its rate (omega)."""
+
+    @property
+    def state_names(self):
+        return ("theta", "omega")
+
+    @property
+    def angle_period(self):
+        return (2 * np.pi, None)
+
+
 @dataclass(frozen=True)
-class Pendulum(ControlAffineSystem):
+class Pendulum(_AngleAndRate, ControlAffineSystem):
     """Paper eq. (pen):  ẋ1 = x2,  ẋ2 = c·x2 − sin(x1) + u  with c = 0.01 (the paper's sign: the origin is a
     weakly *unstable* focus, Re λ = c/2).  x1 is an angle of period 2π."""
 
@@ -97,14 +109,6 @@ class Pendulum(ControlAffineSystem):
 
     def input_matrix(self, x):
         return _const_input(x, np.array([[0.0], [1.0]]))
-
-    @property
-    def state_names(self):
-        return ("theta", "omega")
-
-    @property
-    def angle_period(self):
-        return (2 * np.pi, None)
 
 
 @dataclass(frozen=True)
@@ -132,7 +136,7 @@ class Duffing(ControlAffineSystem):
 
 
 @dataclass(frozen=True)
-class CartPendulum(ControlAffineSystem):
+class CartPendulum(_AngleAndRate, ControlAffineSystem):
     """An inverted pendulum on a cart whose acceleration is the input:  ẋ1 = x2,
     ẋ2 = (g/l)·sin(x1) − d·x2 − cos(x1)·u/l,  x1 the angle from upright.  The origin is a saddle (eigenvalues
     ≈ +0.95 and −1.05 with the defaults), and G = [0, −cos(x1)/l]ᵀ varies with the state: the input loses its grip
@@ -159,14 +163,6 @@ class CartPendulum(ControlAffineSystem):
 
     def input_matrix(self, x):
         return _on_x2(x, -np.cos(np.asarray(x, dtype=float)[..., 0]) / self.length)
-
-    @property
-    def state_names(self):
-        return ("theta", "omega")
-
-    @property
-    def angle_period(self):
-        return (2 * np.pi, None)
 
 
 @dataclass(frozen=True)
