@@ -68,6 +68,9 @@ for s in vanderpol pendulum; do
     done
 done
 
+# the cart pendulum (G varies with x; README "A state-dependent input matrix"): G regressed, and with 1 % noise
+ROWS+=(cart_pendulum_lmpc-reg cart_pendulum_lmpc-reg-noise1 cart_pendulum_lqr-noise1 cart_pendulum_nmpc-noise1)
+
 if [ "${1:-}" = "--list" ]; then printf '%s\n' "${ROWS[@]}"; exit 0; fi
 for row in "$@"; do
     mapfile -t ov < <(overrides "$row")
