@@ -29,6 +29,16 @@ def load(path: Path = MUTATIONS) -> list[dict]:
     return json.loads(path.read_text())
 
 
+def names_a_test(node: str) -> bool:
+    """A test file of the repository, or ``file::test_name`` of a test defined in it: a test that does not exist
+    would make pytest fail, and the mutation would count as caught."""
+    path, _, name = node.partition("::")
+    f = ROOT / path
+    if not (f.is_file() and Path(path).name.startswith("test_")):
+        return False
+    return not name or (name.startswith("test_") and "::" not in name and f"def {name}(" in f.read_text())
+
+
 def run_one(clone: Path, m: dict) -> tuple[bool, str]:
     """Apply ``m`` in ``clone``, run its tests there, restore the file: (caught, pytest's last line)."""
     f = clone / m["file"]
@@ -55,6 +65,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"unknown mutation(s): {', '.join(sorted(unknown))}", file=sys.stderr)
         return 2
     muts = [m for m in muts if not ids or m["id"] in ids]
+    missing = [f"{m['id']}: {t}" for m in muts for t in m["tests"] if not names_a_test(t)]
+    if missing:
+        print(f"no such test (fix {MUTATIONS.relative_to(ROOT)}): {'; '.join(missing)}", file=sys.stderr)
+        return 2
     wrong = []
     with tempfile.TemporaryDirectory() as tmp:
         clone = Path(tmp) / "repo"

@@ -3,7 +3,7 @@ changes: each mutation applies to exactly one place, changes it, names test file
 exist, and says why when it is expected to survive."""
 from pathlib import Path
 
-from mutation_audit import ROOT, load
+from mutation_audit import ROOT, load, names_a_test
 
 
 def test_each_mutation_applies_to_exactly_one_place():
@@ -13,26 +13,16 @@ def test_each_mutation_applies_to_exactly_one_place():
         src = (ROOT / m["file"]).read_text()
         assert src.count(m["old"]) == 1, f"{m['id']}: {m['old']!r} is found {src.count(m['old'])} times in {m['file']}"
         assert m["new"] != m["old"] and m["tests"], m["id"]
-        assert all(_names_a_test(t) for t in m["tests"]), m["id"]
+        assert all(names_a_test(t) for t in m["tests"]), m["id"]
         assert isinstance(m["survives"], str), m["id"]
     # the few expected to survive each say why; the rest are expected to be caught
     survivors = {m["id"] for m in muts if m["survives"]}
     assert survivors == {"lmpc_argmin", "zoh_tail", "cert_bad", "flush_due", "steps_default"}
 
 
-def _names_a_test(node: str) -> bool:
-    """A test file of the repository, or ``file::test_name`` of a test defined in it: a test that does not exist
-    would make pytest fail, and the mutation would count as caught."""
-    path, _, name = node.partition("::")
-    f = ROOT / path
-    if not (f.is_file() and Path(path).name.startswith("test_")):
-        return False
-    return not name or (name.startswith("test_") and "::" not in name and f"def {name}(" in f.read_text())
-
-
 def test_a_mutation_s_tests_must_exist():
-    assert _names_a_test("tests/test_oracle.py")
-    assert _names_a_test("tests/test_oracle.py::test_symbolic_models_of_shipped_systems")
-    assert not _names_a_test("tests/test_oracle.py::test_no_such_test")
-    assert not _names_a_test("tests/no_such_file.py")
-    assert not _names_a_test("tests/mutation_audit.py")
+    assert names_a_test("tests/test_oracle.py")
+    assert names_a_test("tests/test_oracle.py::test_symbolic_models_of_shipped_systems")
+    assert not names_a_test("tests/test_oracle.py::test_no_such_test")
+    assert not names_a_test("tests/no_such_file.py")
+    assert not names_a_test("tests/mutation_audit.py")
