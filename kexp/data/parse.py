@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
+from ..errors import ConfigError, DataError
 
 VALUE_LIMIT = 1e30          # largest |value| of a recorded sample (see the module docstring)
 LINE_LIMIT = 64 << 10       # bytes of one CSV line, its line ending included
@@ -55,7 +55,7 @@ def file_limit() -> int:
     if raw is None:
         return FILE_LIMIT_MB << 20
     if not raw.strip().isdigit() or int(raw) < 1:
-        raise DataError(f"{FILE_LIMIT_ENV}={raw!r}: give a whole number of MiB >= 1 (default {FILE_LIMIT_MB})")
+        raise ConfigError(f"{FILE_LIMIT_ENV}={raw!r}: give a whole number of MiB >= 1 (default {FILE_LIMIT_MB})")
     return int(raw) << 20
 
 
@@ -98,13 +98,13 @@ def _lines(f: Path):
             if not raw:
                 return
             number += 1
-            if len(raw) > LINE_LIMIT:
-                raise DataError(f"{f}: line {number} is longer than {LINE_LIMIT} bytes (64 KiB), the limit for one "
-                                "line; is it a CSV file of recorded runs?")
             nul = raw.find(b"\0")
             if nul >= 0:
                 raise DataError(f"{f}: line {number} holds a NUL byte (byte offset {offset + nul}): a binary file, "
                                 "not CSV text")
+            if len(raw) > LINE_LIMIT:
+                raise DataError(f"{f}: line {number} is longer than {LINE_LIMIT} bytes (64 KiB), the limit for one "
+                                "line; is it a CSV file of recorded runs?")
             skip = 3 if number == 1 and raw.startswith(b"\xef\xbb\xbf") else 0
             try:
                 text = raw[skip:].decode("utf-8")

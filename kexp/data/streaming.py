@@ -180,11 +180,11 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
     sums = [np.zeros(n), np.zeros(n)]
     count, low, high, absmax = 0, np.full(n, np.inf), np.full(n, -np.inf), np.zeros(n)
     for i, (f, fmt) in enumerate(zip(files, formats)):
-        digest.update(f.name.encode())
+        x, ok, u, warning, nan_rows, dropped = _load(f, fmt, n, m, dt, system_name, region_filter, x_eq)
+        digest.update(f.name.encode())   # after the checks: a file past the size limit is never read whole
         with open(f, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 16), b""):
                 digest.update(block)
-        x, ok, u, warning, nan_rows, dropped = _load(f, fmt, n, m, dt, system_name, region_filter, x_eq)
         has_inputs |= u is not None
         n_nan += nan_rows
         all_lengths.append(x.shape[0])
