@@ -241,10 +241,11 @@ def _zeros_frame(size: int) -> bytes:
     return b"".join(parts) + obj.flush()
 
 
-def _mcap(path: Path, declared: int, data: bytes) -> Path:
-    """magic, an empty Header (the chunk starts at byte 25), one zstd Chunk declaring ``declared`` bytes."""
+def _mcap(path: Path, declared: int, data: bytes, compression: bytes = b"zstd") -> Path:
+    """magic, an empty Header (the chunk starts at byte 25), one Chunk declaring ``declared`` bytes."""
     header = struct.pack("<BQII", 1, 8, 0, 0)
-    body = struct.pack("<QQQII", 0, 0, declared, 0, 4) + b"zstd" + struct.pack("<Q", len(data)) + data
+    body = (struct.pack("<QQQII", 0, 0, declared, 0, len(compression)) + compression + struct.pack("<Q", len(data))
+            + data)
     path.write_bytes(MAGIC + header + struct.pack("<BQ", 6, len(body)) + body)
     return path
 
@@ -291,6 +292,38 @@ def test_a_chunk_within_the_budget_is_read_and_a_cut_stays_a_warning(tmp_path):
     log = read_log(p)
     assert log.truncated and log.channels == {} and "run.mcap is truncated (the file ends before its footer)" \
         in log.warning
+
+
+def test_lz4_and_unknown_compressions(tmp_path):
+    import lz4.frame
+    p = _mcap(tmp_path / "run.mcap", 1000, lz4.frame.compress(bytes(16 << 20)), b"lz4")   # 16 MiB in ~64 kB
+    with pytest.raises(LogError, match="run.mcap: the chunk at byte 25 decompresses past the 1000 bytes it declares"):
+        read_log(p)
+    log = read_log(_mcap(tmp_path / "b.mcap", 1000, bytes(10), b"brotli"))
+    assert log.truncated and "b.mcap is truncated (unknown compression 'brotli')" in log.warning
+
+
+def _step_log(path: Path, steps) -> Path:
+    """A finished MCAP log whose /step channel holds ``steps`` (JSON text each), written by kexp's framing."""
+    with open(path, "wb") as fh:
+        w = McapFile(fh)
+        w.start()
+        cid = w.register_channel("/step", "json", w.register_schema("step", "jsonschema", b"{}"))
+        w.add_messages((cid, k, k, k, s.encode()) for k, s in enumerate(steps))
+        w.finish()
+    return path
+
+
+@pytest.mark.parametrize("second, fragment", [
+    ('{"t": 0.01, "x": [0.1, "a"], "u": [0.0]}', "/step message 2: x holds 'a', not a number"),
+    ('{"t": 0.01, "x": [0.1, Infinity], "u": [0.0]}', "/step.x[1, 1] = inf: a run is measured or missing"),
+    ('{"t": 0.01, "x": [0.1, 0.2], "u": [1e31]}', "/step.u[1, 0] = 1e+31 is beyond ±1e+30"),
+    ('[1, 2]', "a /step message is not a JSON object"),
+])
+def test_mcap_step_values_are_read_strictly(tmp_path, second, fragment):
+    first = '{"t": 0.0, "x": [0.1, 0.2], "u": [0.0]}'
+    p = _step_log(tmp_path / "run.mcap", [first, second, first.replace("0.0,", "0.02,", 1)])
+    _refused(p, fragment)
 
 
 def test_a_corrupt_chunk_past_its_crc_is_a_cut_not_a_refusal(tmp_path):

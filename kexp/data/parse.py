@@ -41,7 +41,9 @@ LINE_LIMIT = 64 << 10       # bytes of one CSV line, its line ending included
 FILE_LIMIT_MB = 1024        # default file limit in MiB; the environment variable below overrides it
 FILE_LIMIT_ENV = "KEXP_DATA_FILE_LIMIT_MB"
 
-_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_NUM = r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+_NUMBER = re.compile(_NUM)
+_ROW = re.compile(rf"[ \t]*{_NUM}[ \t]*(?:,[ \t]*{_NUM}[ \t]*)*")   # a row of numbers only: the fast path
 _MISSING = ("", "nan", "+nan", "-nan")
 _INF = ("inf", "+inf", "-inf", "infinity", "+infinity", "-infinity")
 _HEX = re.compile(r"[+-]?0[xX]")
@@ -142,6 +144,7 @@ def read_csv(f: Path) -> tuple[list[str], np.ndarray, list[int]]:
     if dup:
         raise DataError(f"{f}: duplicate column name(s) {dup} in the header; name each column once")
     width = len(header)
+    t_col = header.index("t") if "t" in header else None
     values, rows = array("d"), []
     for number, text in lines:
         if not text.strip(" \t"):
@@ -150,9 +153,11 @@ def read_csv(f: Path) -> tuple[list[str], np.ndarray, list[int]]:
         if len(cells) != width:
             raise DataError(f"{f}: line {number}: data row {len(rows) + 1} has {len(cells)} cells, the header "
                             f"{width}; give one cell per column (empty for the last row's u)")
-        row = [_cell(f, c, number, h) for c, h in zip(cells, header)]
-        if "t" in header and np.isnan(row[header.index("t")]):
-            raise DataError(f"{f}: line {number}, column t: no time; every sample needs its time")
+        row = list(map(float, cells)) if _ROW.fullmatch(text) else None
+        if row is None or max(map(abs, row)) > VALUE_LIMIT:   # a missing or a bad cell: cell by cell
+            row = [_cell(f, c, number, h) for c, h in zip(cells, header)]
+            if t_col is not None and np.isnan(row[t_col]):
+                raise DataError(f"{f}: line {number}, column t: no time; every sample needs its time")
         values.extend(row)
         rows.append(number)
     return header, np.frombuffer(values, dtype=float).reshape(len(rows), width), rows
