@@ -373,3 +373,24 @@ def test_kexp_refuses_handed_files_with_one_line_and_exit_code_2(tmp_path, bombs
         err = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(err) == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
         assert err[0].startswith("kexp: error: ") and fragment in err[0], err[0]
+
+
+def test_the_dictionary_range_check_follows_degree_scale_and_count():
+    """count·max(1, |ξ|)^(2·degree) must stay below 1e308: 1e30 (the files' limit) passes degree 5 over up to 1e8
+    samples and fails degree 8 (measured: a traceback with method=gram), unless the dictionary scales it."""
+    from kexp.data.runs import SampleStats, check_dictionary_range
+
+    def stats(count, top):
+        return SampleStats(count=count, low=np.array([-0.5, -top]), high=np.array([0.5, top]),
+                           absmax=np.array([0.5, top]), sumsq=np.zeros(2), center=np.zeros(2))
+    check_dictionary_range(stats(10 ** 8, 1e30), 5)
+    with pytest.raises(DataError, match=r"the data reach \|x2\| = 1e\+30: monomials up to dictionary.degree=5 reach "
+                                        r"1e150 and their sums of squares over 1000000000 samples 1e309"):
+        check_dictionary_range(stats(10 ** 9, 1e30), 5)
+    with pytest.raises(DataError, match=r"degree=8 reach 1e240 .* over 300 samples 1e482, past the float range"):
+        check_dictionary_range(stats(300, 1e30), 8)
+    check_dictionary_range(stats(300, 1e30), 8, scale=[1.0, 1e30])              # dictionary.scale=auto
+    check_dictionary_range(stats(300, 1e30), 8, scale=[1.0, 1e30], center=[0.0, 0.0])
+    with pytest.raises(DataError, match=r"\|x2\| = 1e\+30 \(scaled: 1e\+20\)"):
+        check_dictionary_range(stats(300, 1e30), 8, scale=[1.0, 1e10])
+    check_dictionary_range(stats(10 ** 12, 0.9), 50)                              # |ξ| < 1 never grows
