@@ -220,4 +220,5 @@ def npz_headers(f: Path) -> dict[str, tuple]:
     except DataError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise DataError(f"{f}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
+        msg = (str(exc).splitlines() or [""])[0]
+        raise DataError(f"{f}: not a readable .npz file ({type(exc).__name__}: {msg})") from None
