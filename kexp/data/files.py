@@ -10,7 +10,10 @@ Layout of one run (T+1 samples, n states, m inputs; time-first, one row per samp
 - **MCAP**: a ``run.mcap`` written by ``kexp``: its ``/step`` channel has t, x, u per control step (the state
   and the input held until the next step); the final state after the last step is not logged.
 
-Checks (each a one-line :class:`~kexp.errors.DataError`): missing or extra arrays/columns, a state dimension
+Checks (each a one-line :class:`~kexp.errors.DataError` naming the file, and the line and column or the array
+entry): every value is read strictly (:mod:`kexp.data.parse`: decimal numbers within ±1e30, NaN or an empty CSV
+cell for a missing sample; no inf, text, hex floats, complex or object arrays; size limits against bombs),
+missing or extra arrays/columns, a state dimension
 other than the system's, input columns other than the system's m, t not increasing in steps of ``dt`` (within
 1e-6·dt: kexp refuses irregular or differently sampled runs, it does not resample), and runs without any
 finite sample.  A sample (row) with NaN in x or u is masked (``valid`` False; u set to 0 there) and counted in
@@ -22,17 +25,16 @@ time; ``read_runs`` fills one in-memory Dataset from it.
 """
 from __future__ import annotations
 
-import csv
-import io
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
-from .checks import require_path, require_type
+from ..errors import ConfigError, DataError, is_number
+from .checks import require_path, require_type, short
 from .dataset import DT_TOLERANCE, Dataset
+from .parse import check_file_size, check_values, npz_headers, read_csv
 
 FORMATS = ("auto", "npz", "csv", "mcap")
 SOURCE_KINDS = ("simulate", "files")
@@ -102,34 +104,6 @@ def list_runs(path: str | Path, format: str = "auto") -> tuple[list[Path], list[
 
 # ---- one run ------------------------------------------------------------------------------------------------
 
-def _npz_shapes(f: Path) -> dict:
-    """{name: shape} of the arrays in an .npz without loading them."""
-    try:
-        with zipfile.ZipFile(f) as z:
-            out = {}
-            for name in z.namelist():
-                with z.open(name) as fh:
-                    major, _minor = np.lib.format.read_magic(fh)
-                    read = np.lib.format.read_array_header_1_0 if major == 1 else \
-                        np.lib.format.read_array_header_2_0
-                    shape = read(fh)[0]
-                out[name[:-4] if name.endswith(".npy") else name] = shape
-            return out
-    except (zipfile.BadZipFile, ValueError, OSError) as exc:
-        raise DataError(f"{f}: not a readable .npz file ({type(exc).__name__}: {exc})") from None
-
-
-def _csv_header(f: Path) -> tuple[list[str], int]:
-    """(header, number of data rows)."""
-    with open(f, newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        rows = sum(1 for row in reader if row)
-    if not header:
-        raise DataError(f"{f}: empty CSV file; expected a header row t,x1,…,xn[,u1,…,um]")
-    return [h.strip() for h in header], rows
-
-
 def _check_columns(f: Path, header: list[str], n: int, m: int) -> bool:
     """True if the CSV has input columns; raise for missing or extra columns."""
     xs = [f"x{i + 1}" for i in range(n)]
@@ -152,36 +126,26 @@ def _check_columns(f: Path, header: list[str], n: int, m: int) -> bool:
     raise DataError(f"{f}: columns {header}; expected t,{','.join(xs)}[,{','.join(us)}] in this order")
 
 
-def _run_shape(f: Path, fmt: str, n: int, m: int, system_name: str | None = None) -> tuple[int, bool, str]:
-    """(number of samples, has inputs, warning) of one run, checking its layout without reading the values; the
-    warning says if an MCAP log was cut short or its run did not finish (its steps up to there are read)."""
-    if fmt == "npz":
-        shapes = _npz_shapes(f)
-        missing = [k for k in ("t", "x") if k not in shapes]
-        extra = sorted(set(shapes) - {"t", "x", "u"})
-        if missing or extra:
-            raise DataError(f"{f}: " + ("; ".join(filter(None, [
-                f"missing array(s) {missing}" if missing else "", f"extra array(s) {extra}" if extra else ""])))
-                + "; expected t (T+1,), x (T+1, n) and optionally u (T, m)")
-        T1 = shapes["t"][0] if len(shapes["t"]) == 1 else -1
-        if T1 < 2:
-            raise DataError(f"{f}: t has shape {shapes['t']}; expected (T+1,) with at least 2 samples")
-        xs = shapes["x"]
-        if len(xs) != 2 or xs[0] != T1:
-            raise DataError(f"{f}: x has shape {xs}; expected (T+1, n) = ({T1}, {n})")
-        if xs[1] != n:
-            raise DataError(f"{f}: x has {xs[1]} state column(s), but the system has n={n}")
-        if "u" in shapes and tuple(shapes["u"]) != (T1 - 1, m):
-            raise DataError(f"{f}: u has shape {shapes['u']}; expected (T, m) = ({T1 - 1}, {m})")
-        return T1, "u" in shapes, ""
-    if fmt == "csv":
-        header, rows = _csv_header(f)
-        has_u = _check_columns(f, header, n, m)
-        if rows < 2:
-            raise DataError(f"{f}: {rows} data row(s); a run needs at least 2 samples")
-        return rows, has_u, ""
-    t, x, u, warning = _read_mcap(f, n, m, system_name)
-    return t.size, True, warning
+def _npz_layout(f: Path, n: int, m: int) -> bool:
+    """True if the .npz has u; raise for missing or extra arrays and wrong shapes (from the headers alone)."""
+    shapes = npz_headers(f)
+    missing = [k for k in ("t", "x") if k not in shapes]
+    extra = sorted(set(shapes) - {"t", "x", "u"})
+    if missing or extra:
+        raise DataError(f"{f}: " + ("; ".join(filter(None, [
+            f"missing array(s) {missing}" if missing else "", f"extra array(s) {extra}" if extra else ""])))
+            + "; expected t (T+1,), x (T+1, n) and optionally u (T, m)")
+    T1 = shapes["t"][0] if len(shapes["t"]) == 1 else -1
+    if T1 < 2:
+        raise DataError(f"{f}: t has shape {shapes['t']}; expected (T+1,) with at least 2 samples")
+    xs = shapes["x"]
+    if len(xs) != 2 or xs[0] != T1:
+        raise DataError(f"{f}: x has shape {xs}; expected (T+1, n) = ({T1}, {n})")
+    if xs[1] != n:
+        raise DataError(f"{f}: x has {xs[1]} state column(s), but the system has n={n}")
+    if "u" in shapes and tuple(shapes["u"]) != (T1 - 1, m):
+        raise DataError(f"{f}: u has shape {shapes['u']}; expected (T, m) = ({T1 - 1}, {m})")
+    return "u" in shapes
 
 
 def _read_mcap(f: Path, n: int, m: int, system_name: str | None = None):
@@ -190,57 +154,67 @@ def _read_mcap(f: Path, n: int, m: int, system_name: str | None = None):
         log = read_log(f)
     except LogError as exc:
         raise DataError(str(exc)) from None
-    logged = ((log.one("/config") or {}).get("config") or {}).get("system") or {}
+    def field(d, key):
+        return d.get(key) if isinstance(d, dict) else None
+
+    logged = field(field(log.one("/config"), "config"), "system") or {}
+    logged = logged if isinstance(logged, dict) else {}
     if system_name and logged.get("name") and logged["name"] != system_name:
         raise DataError(f"{f}: recorded with system {logged['name']!r}, but system.name={system_name!r}; read it "
                         f"with system={logged['name']} or remove it from data.source.path")
     steps = log.messages("/step")
+    if not all(isinstance(s, dict) for s in steps):
+        raise DataError(f"{f}: a /step message is not a JSON object; not a log kexp wrote")
     if len(steps) < 2:
         raise DataError(f"{f}: {len(steps)} /step message(s); a run needs at least 2 control steps")
 
+    def number(v, key, k):
+        if v is None:
+            return np.nan
+        if not is_number(v):
+            raise DataError(f"{f}: /step message {k + 1}: {key} holds {short(v, 40)}, not a number")
+        return float(v)
+
     def arr(key, width, what):
-        rows = [s.get(key) for s in steps]
-        out = np.full((len(rows), width), np.nan)
-        for i, r in enumerate(rows):
+        out = np.full((len(steps), width), np.nan)
+        for k, s in enumerate(steps):
+            r = s.get(key)
             if r is None:
                 continue
-            r = [np.nan if v is None else v for v in np.atleast_1d(r)]
+            r = r if isinstance(r, list) else [r]
             if len(r) != width:
                 raise DataError(f"{f}: /step.{key} has {len(r)} entries, but the system has {what}={width}")
-            out[i] = r
+            out[k] = [number(v, key, k) for v in r]
+        check_values(f, f"/step.{key}", out)
         return out
 
-    t = np.array([np.nan if s.get("t") is None else s["t"] for s in steps], dtype=float)
+    t = np.array([number(s.get("t"), "t", k) for k, s in enumerate(steps)], dtype=float)
     return t, arr("x", n, "n"), arr("u", m, "m")[:-1], log.warning
 
 
-def _read_run(f: Path, fmt: str, n: int, m: int):
-    """(t (T+1,), x (T+1, n), u (T, m) or None) of one run."""
+def read_run(f: Path, fmt: str, n: int, m: int, system_name: str | None = None):
+    """(t (T+1,), x (T+1, n), u (T, m) or None, warning) of one run, read strictly (:mod:`kexp.data.parse`): its
+    layout is checked first (NPZ: from the arrays' headers, before any is loaded), then its values; the warning
+    says if an MCAP log was cut short or its run did not finish (its steps up to there are read)."""
     if fmt == "npz":
+        has_u = _npz_layout(f, n, m)
         try:
             with np.load(f, allow_pickle=False) as z:
-                return (np.asarray(z["t"], float), np.asarray(z["x"], float),
-                        np.asarray(z["u"], float) if "u" in z.files else None)
-        except (ValueError, TypeError, OSError, zipfile.BadZipFile) as exc:
+                arrays = {k: np.asarray(z[k], float) for k in (("t", "x", "u") if has_u else ("t", "x"))}
+        except (ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile) as exc:
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise DataError(f"{f}: arrays t, x, u must hold numbers ({msg})") from None
+        for k, a in arrays.items():
+            check_values(f, k, a)
+        return arrays["t"], arrays["x"], arrays.get("u"), ""
     if fmt == "csv":
-        header, _ = _csv_header(f)
-        with open(f, newline="") as fh:
-            lines = [line for line in fh.read().splitlines()[1:] if line.strip()]
-        for k, line in enumerate(lines):
-            if line.count(",") != len(header) - 1:
-                raise DataError(f"{f}: data row {k + 1} has {line.count(',') + 1} cells, the header "
-                                f"{len(header)}; give one cell per column (empty for the last row's u)")
-        try:
-            data = np.genfromtxt(io.StringIO("\n".join(lines)), delimiter=",", dtype=float, ndmin=2)
-        except ValueError as exc:
-            raise DataError(f"{f}: unreadable CSV ({str(exc).splitlines()[0]})") from None
-        if data.shape[1] != len(header):
-            raise DataError(f"{f}: rows have {data.shape[1]} cells, the header {len(header)}")
-        u = data[:-1, 1 + n:] if len(header) > 1 + n else None
-        return data[:, 0], data[:, 1:1 + n], u
-    return _read_mcap(f, n, m)[:3]
+        header, data, _lines = read_csv(f)
+        has_u = _check_columns(f, header, n, m)
+        if data.shape[0] < 2:
+            raise DataError(f"{f}: {data.shape[0]} data row(s); a run needs at least 2 samples")
+        return data[:, 0], data[:, 1:1 + n], (data[:-1, 1 + n:] if has_u else None), ""
+    check_file_size(f)
+    return _read_mcap(f, n, m, system_name)
 
 
 def _check_time(f: Path, t: np.ndarray, dt: float) -> None:

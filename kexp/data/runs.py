@@ -192,3 +192,31 @@ def sample_stats(runs: Iterable[Run], n: int, center=None) -> SampleStats:
         absmax = np.maximum(absmax, np.abs(xs).max(axis=0))
         sumsq = np.concatenate([sumsq[None], (xs - c) ** 2]).sum(axis=0)
     return SampleStats(count=count, low=low, high=high, absmax=absmax, sumsq=sumsq, center=c)
+
+
+FLOAT_ROOM = 308   # decades: the Gram sums of a dictionary on the data must stay below 1e308 (floats end at 1.8e308)
+
+
+def check_dictionary_range(stats: SampleStats, degree: int, scale=None, center=None) -> None:
+    """A one-line DataError if monomials up to ``degree`` of ξ = (x − center)/scale (``scale``, ``center``: (n,)
+    or None for 1 and 0, as :class:`~kexp.dictionary.Monomials`) could overflow on the kept samples of ``stats``:
+    with M = max(1, max_i |ξ_i|) over the data's bounding box, every monomial is at most M^degree, so the Gram
+    sums Σ φ_i φ_j over the ``count`` samples (and the squared norms a QR forms) are at most count·M^(2·degree),
+    which must stay below 1e308.  The per-value limit of the files (±1e30, :mod:`kexp.data.parse`) is this rule
+    for the default degree 5 and up to 1e8 samples; a higher degree on large values needs this check
+    (measured: 1e30 in one cell, degree 8, method=gram ended in a traceback, ``array must not contain infs or
+    NaNs``)."""
+    if stats.count == 0:
+        return
+    n = stats.low.size
+    c = np.zeros(n) if center is None else np.asarray(center, float).reshape(-1) * np.ones(n)
+    s = np.ones(n) if scale is None else np.asarray(scale, float).reshape(-1) * np.ones(n)
+    xi = np.maximum(np.abs(stats.high - c), np.abs(stats.low - c)) / s
+    i = int(np.argmax(xi))
+    decades = np.log10(stats.count) + 2 * degree * np.log10(max(1.0, float(xi[i])))
+    if decades > FLOAT_ROOM:
+        scaled = "" if scale is None else f" (scaled: {xi[i]:.3g})"
+        raise DataError(f"the data reach |x{i + 1}| = {xi[i] * s[i]:.3g}{scaled}: "
+                        f"monomials up to dictionary.degree={degree} reach 1e{degree * np.log10(xi[i]):.0f} and their "
+                        f"sums of squares over {stats.count} samples 1e{decades:.0f}, past the float range (1e308); "
+                        "use dictionary.scale=auto, a lower dictionary.degree, or rescale the data")

@@ -22,18 +22,14 @@ from ..errors import ConfigError, DataError, require_number
 from .checks import require_path, short, state_vector
 from .collect import RegionFilter
 from .dataset import PAIR_RULES, DataReport, Dataset
-from .files import FORMATS, DataBounds, _check_time, _read_mcap, _read_run, _run_shape, list_runs
+from .files import FORMATS, DataBounds, _check_time, list_runs, read_run
 from .runs import Run, SampleStats, count_pairs, pair_chunks, sample_stats, split_indices
 from .smoothing import segments, smooth_run
 
 
 def _load(f: Path, fmt: str, n: int, m: int, dt: float, system_name, region_filter, x_eq):
     """(x (T+1, n) NaN where masked, valid (T+1,), u (T, m) or None, warning, NaN rows, dropped) of one file."""
-    if fmt == "mcap":   # the log is parsed once: shapes and values come from the same read
-        t, xi, ui, warning = _read_mcap(f, n, m, system_name)
-    else:
-        warning = _run_shape(f, fmt, n, m)[2]
-        t, xi, ui = _read_run(f, fmt, n, m)
+    t, xi, ui, warning = read_run(f, fmt, n, m, system_name)
     _check_time(f, t, dt)
     ok = np.all(np.isfinite(xi), axis=1)
     if ui is not None:
@@ -184,11 +180,11 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
     sums = [np.zeros(n), np.zeros(n)]
     count, low, high, absmax = 0, np.full(n, np.inf), np.full(n, -np.inf), np.zeros(n)
     for i, (f, fmt) in enumerate(zip(files, formats)):
-        digest.update(f.name.encode())
+        x, ok, u, warning, nan_rows, dropped = _load(f, fmt, n, m, dt, system_name, region_filter, x_eq)
+        digest.update(f.name.encode())   # after the checks: a file past the size limit is never read whole
         with open(f, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 16), b""):
                 digest.update(block)
-        x, ok, u, warning, nan_rows, dropped = _load(f, fmt, n, m, dt, system_name, region_filter, x_eq)
         has_inputs |= u is not None
         n_nan += nan_rows
         all_lengths.append(x.shape[0])

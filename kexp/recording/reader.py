@@ -5,9 +5,8 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mcap.reader import NonSeekingReader
-
 from ..errors import KexpError
+from .mcap_read import Cut, iter_messages
 
 
 class LogError(KexpError, OSError):
@@ -41,7 +40,10 @@ class RunLog:
 
 def read_log(path: str | Path) -> RunLog:
     """Messages of every channel in log-time order.  A file cut short (killed writer) yields what its complete
-    chunks hold, with ``truncated=True`` and a warning; a file that is not MCAP raises :class:`LogError`."""
+    chunks hold, with ``truncated=True`` and a warning; a file that is not MCAP, or one past the decompression
+    limits of :mod:`kexp.recording.mcap_read` (a chunk over 64 MiB, all chunks over 64× the file's size + 1 MiB,
+    a chunk that decompresses past its declared size), raises :class:`LogError` before that much is
+    decompressed."""
     path = Path(path)
     if not path.exists():
         raise LogError(f"log {path} does not exist")
@@ -49,17 +51,15 @@ def read_log(path: str | Path) -> RunLog:
         raise LogError(f"{path} is not a file; pass the run.mcap inside a run folder")
     log = RunLog(path=path)
     with open(path, "rb") as f:
-        head = f.read(8)
-        if head[:5] != b"\x89MCAP":
-            raise LogError(f"{path} is not an MCAP file (bad magic); pass a run.mcap written by kexp")
-        f.seek(0)
-        reader = NonSeekingReader(f, validate_crcs=True)
         try:
-            for _schema, channel, message in reader.iter_messages(log_time_order=False):
-                log.channels.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+            for topic, log_time, data in iter_messages(f, str(path)):
+                log.channels.setdefault(topic, []).append((log_time, json.loads(data)))
+        except LogError:
+            raise
         except Exception as exc:  # noqa: BLE001 - any decode error at the tail means a cut file
+            reason = str(exc) if isinstance(exc, Cut) else type(exc).__name__
             log.truncated = True
-            log.warning = (f"{path.name} is truncated ({type(exc).__name__}); read up to the last complete chunk "
+            log.warning = (f"{path.name} is truncated ({reason}); read up to the last complete chunk "
                            f"({sum(len(v) for v in log.channels.values())} messages)")
     for topic in log.channels:
         log.channels[topic].sort(key=lambda tm: tm[0])
