@@ -226,7 +226,8 @@ def test_bad_noise_and_plant_settings_fail_before_any_work(override, message, tm
 
 
 def test_bad_plant_param_at_the_cli_is_one_line_and_exit_2(tmp_path):
-    proc = subprocess.run(["python", "-m", "kexp.app.main", *SMALL, "+sim.plant_params.damping=0.1",
+    import sys   # the running interpreter, not whatever `python` is first on PATH
+    proc = subprocess.run([sys.executable, "-m", "kexp.app.main", *SMALL, "+sim.plant_params.damping=0.1",
                            f"hydra.run.dir={tmp_path}"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip() == ("kexp: error: sim.plant_params.damping: not a parameter of system 'vanderpol'; "
