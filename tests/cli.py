@@ -18,3 +18,17 @@ def refused(main, prog, capsys, fragment, *argv):
     assert err[0].startswith(f"{prog}: error: ") and fragment in err[0], err
     assert out == ""
     return err[0]
+
+
+def console_script(name: str) -> str:
+    """The console script ``name`` (kexp, kexp-diff, …) of the running interpreter's environment — its scripts
+    folder, e.g. the venv's bin/ — not whatever a bare name finds first on PATH (another environment's, or
+    none when the venv is not activated)."""
+    import sys
+    import sysconfig
+    from pathlib import Path
+    for folder in (sysconfig.get_path("scripts"), Path(sys.executable).parent):
+        path = Path(folder) / name
+        if path.is_file():
+            return str(path)
+    raise FileNotFoundError(f"no {name} in {sysconfig.get_path('scripts')} (pip install -e '.[test]' installs it)")

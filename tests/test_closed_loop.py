@@ -140,6 +140,26 @@ def test_settling_time_and_success_on_a_known_decay():
     assert short.metrics.settling_time == np.inf and not short.metrics.success
 
 
+def test_the_shipped_configs_success_radius_is_0_01():
+    """The shipped sim config (conf/sim/default.yaml, composed by Hydra, built by build_sim; T = 10 s) on the known
+    decay ẋ = −x, u = 0: ‖x(T)‖ = 0.05 is no success (the radius is 0.01) and settles never; ‖x(T)‖ = 0.005 is
+    a success, settled at the first sample after ln(‖x0‖/0.01) = 10 − ln 2 = 9.307 s, i.e. 9.31 s."""
+    from hydra import compose, initialize_config_dir
+    from kexp.app.build import build_sim
+    from kexp.app.conf import CONF_DIR
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["system=linear"])
+    s = Linear(A=((-1.0, 0.0), (0.0, -1.0)), B=((0.0,), (1.0,)))
+    sim, _, _ = build_sim(cfg.sim, s, 0.01)
+    assert sim.T == 10.0 and sim.dt == 0.01
+    far = closed_loop(s, Constant([0.0]), [0.05 * np.exp(10.0), 0.0], sim)
+    assert abs(far.metrics.final_error - 0.05) < 1e-8 and not far.metrics.success
+    assert far.metrics.settling_time == np.inf
+    near = closed_loop(s, Constant([0.0]), [0.005 * np.exp(10.0), 0.0], sim)
+    assert abs(near.metrics.final_error - 0.005) < 1e-8 and near.metrics.success
+    assert abs(near.metrics.settling_time - 9.31) < 1e-9
+
+
 def test_bad_initial_condition_and_dt_mismatch():
     s = VanDerPol()
     with pytest.raises(ConfigError, match="finite"):

@@ -178,3 +178,32 @@ def test_row_check_and_linearised_vmax_are_the_numpy_formulas(vdp):
     ref = float(np.max(clf.lyap.value(Z0[1:] + np.einsum("jkc,c->jk", S0[1:], du))))
     got = linearised_vmax(Z0, S, du, np.ascontiguousarray(clf.P), first, np.zeros(model.k), np.zeros(model.k))
     assert abs(got - ref) <= 1e-12 * ref
+
+
+def test_the_21e_rows_bound_V_by_r_hat_not_r(vdp):
+    """Inside Ω_r̂ the (21e) rows linearise V(z_j) ≤ r̂ + s at the guess: rows_j = 2 z̄_jᵀP S_j and right-hand side
+    r̂ − V(z̄_j) + rows_j·ū (the numpy reference of :func:`_full_qp_plan`).  The CLF's r and r̂ differ (by 40 % of
+    r̂ and more here), so a right-hand side built on r is off by r − r̂ in every row."""
+    _, model, clf, h = vdp
+    assert clf.r - clf.r_hat > 0.4 * clf.r_hat
+    rng = np.random.default_rng(7)
+    cand = rng.uniform(-0.3, 0.3, (400, 2))
+    x0s = cand[clf.lyap.value(model.lift(cand)) < 0.9 * clf.r_hat][:3]
+    assert len(x0s) == 3
+    for x0 in x0s:
+        ctrl = Lmpc(model, clf, h, LmpcConfig(), -5.0, 5.0)
+        z0 = model.lift(x0)
+        Ub = ctrl._blocks_from_steps(ctrl._useq) + rng.uniform(-0.5, 0.5, (len(ctrl.sizes), model.m))
+        ub = Ub.reshape(-1)
+        G, h_u = ctrl._qp_data(z0, np.ascontiguousarray(Ub), "21e", 0.0, np.zeros(model.m))[2:]
+        Z0, S0 = rollout_sensitivity(ctrl.lam, ctrl.B, ctrl.b, model.dt, z0, Ub, ctrl.bos)
+        zP = Z0[1:] @ ctrl.P
+        rows = 2 * np.einsum("jk,jkc->jc", zP, S0[1:])
+        V = np.sum(zP * Z0[1:], 1)
+        ref = clf.r_hat - V + rows @ ub
+        scale = np.max(np.abs(ref))
+        assert np.max(np.abs(ctrl._rows - rows)) <= 1e-9 * np.max(np.abs(rows))
+        assert np.max(np.abs(ctrl._h_rows - ref)) <= 1e-9 * scale
+        assert clf.r - clf.r_hat > 1e6 * 1e-9 * scale        # r in place of r̂ would be far outside the tolerance
+        j = int(np.argmax(V))             # the QP's one row: the row of least margin, V(z̄_j) ≤ r̂ + s
+        assert np.array_equal(G[0, :-1], ctrl._rows[j]) and G[0, -1] == -1.0 and h_u[0] == ctrl._h_rows[j]

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.linalg as sla
 
 from kexp.data import Circle, DataConfig, Excitation, RegionFilter, collect, read_runs, write_runs
 from kexp.dictionary import Monomials
@@ -58,10 +59,16 @@ def test_forced_round_trip_gives_the_same_regressed_model(fmt, tmp_path):
 def test_runs_of_different_lengths_are_padded_and_masked(tmp_path):
     rng = np.random.default_rng(0)
     lengths = [5, 12, 8]
+    xs, u1 = [], None
     for i, L in enumerate(lengths):
-        np.savez(tmp_path / f"r{i}.npz", t=1.0 + np.arange(L) * 0.1, x=rng.normal(size=(L, 2)),
-                 **({"u": rng.normal(size=(L - 1, 1))} if i == 1 else {}))
+        xs.append(rng.normal(size=(L, 2)))
+        if i == 1:
+            u1 = rng.normal(size=(L - 1, 1))
+        np.savez(tmp_path / f"r{i}.npz", t=1.0 + np.arange(L) * 0.1, x=xs[i], **({"u": u1} if i == 1 else {}))
     ds = read_runs(tmp_path, n=2, m=1, dt=0.1)
+    for i, L in enumerate(lengths):         # the values written come back, bit for bit, then masked padding
+        assert np.array_equal(ds.x[i, :L], xs[i]) and ds.valid[i, :L].all() and not ds.valid[i, L:].any()
+    assert np.array_equal(ds.u[1], u1)
     assert ds.x.shape == (3, 12, 2) and ds.u.shape == (3, 11, 1)
     assert ds.valid.sum(axis=1).tolist() == lengths
     assert ds.n_pairs == sum(L - 1 for L in lengths) == 22
@@ -121,6 +128,24 @@ def test_mcap_log_of_a_kexp_run_is_data():
     model = identify(VDP, ds, Monomials(2, 2), IdentifyConfig(inputs="regression", holdout=0))
     assert model.k == 6 and model.report["n_pairs_train"] == 199
     assert np.all(np.isfinite(model.B)) and np.all(np.isfinite(model.b))
+    # the drift's eigenvalues are those of logm(K̄0)/Δ, K̄0 from numpy's least squares of φ(x⁺) on [u^p φ(x)],
+    # p = 0..degree (φ = 1, x1, x2, x1², x1x2, x2², written out here).  Closed-loop u is nearly a function of x:
+    # with degree 3 the regressors' condition number is 9e12, so they agree to cond·eps ≈ 1e-3 (measured 1.5e-5);
+    # with degree 1 (cond 6e5) to 1e-7 (measured 2e-11; that model drops the constant's eigenvalue 0)
+    x, u = ds.x[0], ds.u[0, :, 0]
+
+    def phi(x):
+        return np.column_stack([np.ones(len(x)), x[:, 0], x[:, 1], x[:, 0] ** 2, x[:, 0] * x[:, 1], x[:, 1] ** 2])
+    for degree, fitted, tol in ((3, model, 1e-3), (1, None, 1e-7)):
+        fitted = fitted or identify(VDP, ds, Monomials(2, 2),
+                                    IdentifyConfig(inputs="regression", holdout=0, input_degree=degree))
+        coef = np.linalg.lstsq(np.hstack([phi(x[:-1]) * u[:, None] ** p for p in range(degree + 1)]), phi(x[1:]),
+                               rcond=None)[0]
+        ref = np.linalg.eigvals(sla.logm(coef[:6].T)) / 0.01
+        dist = np.abs(fitted.eigenvalues[:, None] - ref[None, :])
+        assert dist.min(axis=1).max() < tol, (degree, fitted.eigenvalues, ref)      # each is the reference's
+        unmatched = ref[dist.min(axis=0) >= tol]                                     # the constant's 0
+        assert len(unmatched) == (0 if degree == 3 else 1) and np.all(np.abs(unmatched) < 1e-9)
     with pytest.raises(DataError, match="recorded with system 'vanderpol', but system.name='pendulum'"):
         read_runs(path, n=2, m=1, dt=0.01, system_name="pendulum")
 

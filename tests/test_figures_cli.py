@@ -85,7 +85,14 @@ def test_out_paths(run_dir, tmp_path, capsys):
     # no suffix: a PNG, and the path printed is the one written
     code, out, err = _run(capsys, "paper", mcap, "-o", tmp_path / "out")
     assert code == 0 and err == [] and out.strip() == f"wrote {tmp_path / 'out.png'}"
-    assert (tmp_path / "out.png").stat().st_size > 10_000 and not (tmp_path / "out").exists()
+    assert not (tmp_path / "out").exists()
+    # the PNG is the log's paper figure: the pixels paper_figure draws for it, decoded, and not a blank canvas
+    import matplotlib.image as mpimg
+    from kexp.analysis.figures import paper_figure
+    assert (tmp_path / "out.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    img, ref = mpimg.imread(tmp_path / "out.png"), mpimg.imread(paper_figure(mcap, tmp_path / "ref.png"))
+    assert img.ndim == 3 and img.shape[0] > 300 and img.shape[1] > 600 and np.array_equal(img, ref)
+    assert (img[..., :3] < 0.5).mean() > 0.005 and (img[..., :3] > 0.9).mean() > 0.5   # ink on a white page
     code, out, _ = _run(capsys, "paper", mcap, "-o", tmp_path / "fig.pdf")
     assert code == 0 and out.strip() == f"wrote {tmp_path / 'fig.pdf'}"
     assert (tmp_path / "fig.pdf").read_bytes()[:4] == b"%PDF"

@@ -112,7 +112,11 @@ def _steps(d: Path):
 
 def test_closed_loop_measurement_noise_has_the_requested_sigma(runs):
     d, summary = runs["noisy"]
-    rms = np.array(summary["noise"]["data_rms"])
+    # the data's RMS per state about x_eq = 0, computed here from the data the run collected (its seeded config)
+    from kexp.app.build import build_data
+    data = collect(make_system("vanderpol"), *build_data(_cfg(NOISY).data))
+    rms = np.sqrt(np.mean(data.x[data.valid] ** 2, axis=0))
+    np.testing.assert_allclose(summary["noise"]["data_rms"], rms, rtol=1e-12)
     sigma = 0.02 * rms                                # relative: a fraction of the data's RMS per state
     np.testing.assert_allclose(summary["noise"]["sim_noise_std"], sigma, rtol=1e-12)
     steps = _steps(d)
@@ -226,7 +230,8 @@ def test_bad_noise_and_plant_settings_fail_before_any_work(override, message, tm
 
 
 def test_bad_plant_param_at_the_cli_is_one_line_and_exit_2(tmp_path):
-    proc = subprocess.run(["python", "-m", "kexp.app.main", *SMALL, "+sim.plant_params.damping=0.1",
+    import sys   # the running interpreter, not whatever `python` is first on PATH
+    proc = subprocess.run([sys.executable, "-m", "kexp.app.main", *SMALL, "+sim.plant_params.damping=0.1",
                            f"hydra.run.dir={tmp_path}"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip() == ("kexp: error: sim.plant_params.damping: not a parameter of system 'vanderpol'; "
@@ -283,6 +288,6 @@ def test_data_noise_applies_to_recorded_data_too(tmp_path):
     summary = run(_cfg(["data.source.kind=files", f"data.source.path={tmp_path / 'runs'}", "data.noise.std=0.02",
                         "data.noise.seed=4", "sim.T=0.1", "cache.enabled=false"]), tmp_path / "out",
                   echo=lambda *_: None)
-    rms = data_rms(clean)
+    rms = np.sqrt(np.mean(clean.x[clean.valid] ** 2, axis=0))      # from the data themselves (x_eq = 0)
     np.testing.assert_allclose(summary["noise"]["data_rms"], rms, rtol=1e-12)
     np.testing.assert_allclose(summary["noise"]["data_noise_std"], 0.02 * rms, rtol=1e-12)

@@ -84,11 +84,36 @@ def _no_pythonpath_env() -> dict:
     return {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
 
 
+def _deps_pth() -> list[str]:
+    """The running interpreter's package folders — a venv's site-packages when pytest runs in one, else the
+    system's (and the user's, when enabled) — for a .pth file in the test's venv: its lines are appended to that
+    venv's sys.path after its own site-packages (which holds the wheel), and the .pth files in them are not run
+    (so an editable kexp of this environment stays out of it)."""
+    import site
+    import sysconfig
+    paths = [*site.getsitepackages(), sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]]
+    if site.ENABLE_USER_SITE:
+        paths.append(site.getusersitepackages())
+    return [p for i, p in enumerate(paths) if p not in paths[:i] and Path(p).is_dir()]
+
+
+def test_the_deps_pth_lists_this_interpreters_package_folders():
+    import sysconfig
+    paths = _deps_pth()
+    assert sysconfig.get_paths()["purelib"] in paths and len(set(paths)) == len(paths)
+    import hydra
+    assert any(Path(hydra.__file__).is_relative_to(p) for p in paths)   # where this environment's deps are
+    if sys.prefix != sys.base_prefix:     # in a venv: its own folder, not the base interpreter's
+        assert Path(paths[0]).is_relative_to(sys.prefix)
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp_path):
-    """Build the wheel from a copy of the sources, install it (no deps: they come from this environment through
-    --system-site-packages), and run a short experiment with the venv's `kexp` from an empty folder."""
+    """Build the wheel from a copy of the sources, install it offline into a new venv (no deps: they come from the
+    running interpreter's package folders, see _deps_pth), and run a short experiment with the venv's `kexp` from an
+    empty folder.  Works whether pytest runs in a venv (the README's `pip install -e '.[test]'` in one) or not:
+    --system-site-packages would give the base interpreter's packages, not the enclosing venv's."""
     src = tmp_path / "src"
     src.mkdir()
     for name in ("pyproject.toml", "README.md"):
@@ -105,11 +130,20 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp
     assert "kexp/app/main.py" in names and not any(n.startswith("conf/") for n in names)
 
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     bindir = venv / "bin"
     env = _no_pythonpath_env()
-    subprocess.run([str(bindir / "python"), "-m", "pip", "install", "--no-deps", "-q", str(wheel)], check=True,
-                   capture_output=True, env=env)
+    # the wheel first, while the venv sees only itself (pip would otherwise find this environment's kexp), offline
+    subprocess.run([str(bindir / "python"), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)],
+                   check=True, capture_output=True, env=env)
+    purelib = subprocess.run([str(bindir / "python"), "-c",
+                              "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                             check=True, capture_output=True, text=True, env=env).stdout.strip()
+    assert Path(purelib).is_relative_to(venv)
+    (Path(purelib) / "_kexp_test_deps.pth").write_text("".join(f"{p}\n" for p in _deps_pth()))
+    deps = subprocess.run([str(bindir / "python"), "-c", "import hydra, numpy, scipy, kexp; print(kexp.__file__)"],
+                          capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert deps.returncode == 0, deps.stderr[-2000:]
     where = subprocess.run([str(bindir / "python"), "-c", "import kexp, kexp.app.main as m; "
                             "print(kexp.__file__); print(m.CONF_DIR)"],
                            check=True, capture_output=True, text=True, env=env, cwd=tmp_path).stdout.split()

@@ -4,6 +4,7 @@ by what it does rather than by entries that depend on the eigen-coordinates."""
 import json
 import os
 import platform
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +15,8 @@ import pytest
 from kexp.app import golden
 from kexp.recording import copy_log, diff_logs
 from kexp.recording.diff import main as diff_main
+
+from cli import console_script
 
 GOLDEN = golden.RECORDINGS / "paper_pendulum.mcap"   # the worst-conditioned shipped case: cond(Phi_X) = 1.5e6
 
@@ -200,7 +203,8 @@ def test_cli_policy_and_a_closed_pipe(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("kexp-diff: error: the portable policy") and "\n" not in err
     other = golden.RECORDINGS / "paper_vanderpol.mcap"
-    proc = subprocess.run(f"kexp-diff '{GOLDEN}' '{other}' | head -1", shell=True, capture_output=True, text=True)
+    cmd = f"{shlex.quote(console_script('kexp-diff'))} {shlex.quote(str(GOLDEN))} {shlex.quote(str(other))} | head -1"
+    proc = subprocess.run(cmd, shell=True, capture_output=True, text=True)
     assert proc.stdout.startswith("first divergence") and proc.stderr == "", proc.stderr
 
 

@@ -1,7 +1,9 @@
 """Identification from recorded files streams (issue 12's last target): the file-backed source gives the same
 model as the in-memory Dataset, and its memory does not grow with the number of pairs."""
+import csv
 import shutil
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +20,21 @@ VDP = make_system("vanderpol", {})
 KW = dict(n=2, m=1, dt=0.01, system_name="vanderpol", x_eq=VDP.equilibrium)
 
 
+def _read_independently(path: Path):
+    """(x (L, n), NaN rows kept; u (L − 1, m) or None) of a file write_runs wrote, read by numpy's npz reader or the
+    csv module — not kexp's loader."""
+    if path.suffix == ".npz":
+        with np.load(path) as f:
+            return f["x"], (f["u"] if "u" in f.files else None)
+    with open(path, newline="") as fh:
+        head, *body = list(csv.reader(fh))
+    xs = [j for j, h in enumerate(head) if h.startswith("x")]
+    us = [j for j, h in enumerate(head) if h.startswith("u")]
+    assert head[0] == "t" and len(xs) == 2
+    x = np.array([[float(r[j]) for j in xs] for r in body])
+    return x, (np.array([[float(r[j]) for j in us] for r in body[:-1]]) if us else None)
+
+
 @pytest.mark.parametrize("fmt", ["npz", "csv"])
 @pytest.mark.parametrize("forced", [False, True])
 def test_streamed_files_give_the_in_memory_model(fmt, forced, tmp_path):
@@ -32,6 +49,20 @@ def test_streamed_files_give_the_in_memory_model(fmt, forced, tmp_path):
     write_runs(ds, tmp_path, fmt)
     mem, src = read_runs(tmp_path, **KW), open_runs(tmp_path, **KW)
     assert src.report == mem.report and src.n_pairs == mem.n_pairs and src.n_traj == mem.n_traj == 8
+    # both read the files through kexp's one loader: each file read here by numpy's npz reader or the csv module
+    # holds the collected run's values, and both sources give exactly those
+    for i, (f, run) in enumerate(zip(src.files, src.runs())):
+        x, u = _read_independently(Path(f))
+        L, ok = len(x), np.isfinite(x).all(axis=1)
+        assert ok.sum() > 0.5 * L and np.array_equal(ok, ds.valid[i, :L]) and not ds.valid[i, L:].any()
+        assert np.array_equal(x[ok], ds.x[i, :L][ok])                  # what was written: the collected run
+        assert np.array_equal(run.valid, ok) and np.array_equal(run.x[ok], x[ok])
+        assert np.array_equal(mem.valid[i, :L], ok) and np.array_equal(mem.x[i, :L][ok], x[ok])
+        if forced:
+            assert np.array_equal(u, ds.u[i, :L - 1]) and np.array_equal(run.u, u)
+            assert np.array_equal(mem.u[i, :L - 1], u)
+        else:
+            assert u is None and run.u is None and mem.u is None
     assert np.array_equal(data_rms(src, VDP.equilibrium), data_rms(mem, VDP.equilibrium))
     assert bounds(src) == bounds(mem) and auto_scale(src) == auto_scale(mem)
     mem, src = (add_measurement_noise(d, 0.01, seed=3, x_eq=VDP.equilibrium) for d in (mem, src))

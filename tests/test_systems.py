@@ -8,12 +8,32 @@ from kexp.errors import SystemDefinitionError
 from kexp.systems import SYSTEMS, Pendulum, SlowManifold, VanDerPol, make_system
 
 
+# each shipped system's equations at its default parameters, written out here: (x1, x2, u) -> (ẋ1, ẋ2)
+EQUATIONS = {
+    "cart_pendulum": lambda x1, x2, u: (x2, np.sin(x1) - 0.1 * x2 - np.cos(x1) * u),
+    "duffing": lambda x1, x2, u: (x2, -0.5 * x2 + x1 - x1 ** 3 + u),
+    "linear": lambda x1, x2, u: (x2, -2.0 * x1 - 0.3 * x2 + u),
+    "pendulum": lambda x1, x2, u: (x2, 0.01 * x2 - np.sin(x1) + u),
+    "slow_manifold": lambda x1, x2, u: (-0.3 * x1, -(x2 - x1 ** 2) + u),
+    "vanderpol": lambda x1, x2, u: (x2, (1 - x1 ** 2) * x2 - x1 + u),
+}
+
+
 @pytest.mark.parametrize("name", sorted(SYSTEMS))
 def test_shipped_systems_pass_checks_and_vanish_at_equilibrium(name):
+    """Each shipped system's F and G give its equations (written out in EQUATIONS) at random states and inputs, with
+    and without the input, over a batch and a single state."""
+    assert sorted(EQUATIONS) == sorted(SYSTEMS)
     s = make_system(name)
-    x = s.equilibrium + np.random.default_rng(0).normal(size=(7, s.n))
-    assert s.rhs(x).shape == (7, s.n)
-    assert s.rhs(x, np.ones((7, s.m))).shape == (7, s.n)
+    rng = np.random.default_rng(0)
+    x = s.equilibrium + rng.normal(size=(7, s.n))
+    u = rng.normal(size=(7, s.m))
+    want = np.stack(EQUATIONS[name](x[:, 0], x[:, 1], u[:, 0]), axis=-1)
+    free = np.stack(EQUATIONS[name](x[:, 0], x[:, 1], 0.0 * u[:, 0]), axis=-1)
+    assert s.rhs(x, u).shape == (7, s.n) and np.allclose(s.rhs(x, u), want, rtol=1e-14, atol=1e-14)
+    assert s.rhs(x).shape == (7, s.n) and np.allclose(s.rhs(x), free, rtol=1e-14, atol=1e-14)
+    assert np.allclose(s.rhs(x[3], u[3]), want[3], rtol=1e-14, atol=1e-14)
+    assert np.max(np.abs(want - free)) > 0.1                      # the input acts
     assert np.allclose(s.drift(s.equilibrium[None]), 0.0)
     assert len(s.state_names) == s.n
 
