@@ -171,15 +171,23 @@ def _group(pgid: int) -> list[tuple[int, str]]:
     return out
 
 
+LAUNCHERS = {"joblib": (["hydra/launcher=joblib", "hydra.launcher.n_jobs=2"], "loky"),
+             "submitit_local": (["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=5"], "submitit")}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
-def test_workers_end_when_the_kexp_process_is_killed(tmp_path, sig):
-    """A joblib sweep in its own process group; once a job runs (its summary says "running"), the kexp process is
-    killed: its loky workers and the resource trackers end too (they stayed, ~240 MB each, for the whole sweep's
-    work and idle afterwards)."""
+@pytest.mark.parametrize("launcher,sig", [("joblib", signal.SIGKILL), ("joblib", signal.SIGTERM),
+                                          ("submitit_local", signal.SIGKILL)])
+def test_workers_end_when_the_kexp_process_is_killed(tmp_path, launcher, sig):
+    """A sweep in its own process group; once a job runs (its summary says "running"), the kexp process is killed:
+    its loky workers and the resource trackers (joblib), its jobs and their submitit helpers (children of the kexp
+    process's children) end too (they stayed, ~240 MB each, for the whole sweep's work and idle afterwards)."""
+    if launcher == "submitit_local":
+        pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    args, marker = LAUNCHERS[launcher]
     sweep = tmp_path / "sweep"
-    cmd = _script("kexp") + ["--multirun", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-                             f"sim.x0={','.join(X0)}", f"hydra.sweep.dir={sweep}", *QUICK, "sim.T=200.0"]
+    cmd = _script("kexp") + ["--multirun", *args, f"sim.x0={','.join(X0[:2])}", f"hydra.sweep.dir={sweep}", *QUICK,
+                             "sim.T=200.0"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     pgid = proc.pid
@@ -190,7 +198,7 @@ def test_workers_end_when_the_kexp_process_is_killed(tmp_path, sig):
             assert time.monotonic() < deadline, "no job started within 300 s"
             time.sleep(0.2)
         workers = [p for p in _group(pgid) if p[0] != proc.pid]
-        assert any("loky" in c for _, c in workers), workers   # the workers exist, in the sweep's group
+        assert any(marker in c for _, c in workers), workers   # the workers exist, in the sweep's group
         os.kill(proc.pid, sig)
         proc.wait(timeout=60)
         deadline = time.monotonic() + 60

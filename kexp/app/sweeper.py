@@ -142,12 +142,13 @@ def install_loader() -> None:
 
 
 # -- workers end with the kexp process ----------------------------------------------------------------------------
-# A joblib sweep's loky workers (and the resource trackers, which live as long as a worker holds their pipe) and a
-# submitit_local sweep's jobs are children of the kexp process.  Killed (SIGKILL, SIGTERM), it cannot stop them, and
-# they went on for the whole sweep's work and stayed idle afterwards (~240 MB each).  Each of them runs a watchdog
-# thread that ends its process (os._exit) as soon as its parent is no longer the kexp process (it was re-parented).
+# A joblib sweep's loky workers (and the resource trackers, which live as long as a worker holds their pipe) are
+# children of the kexp process, a submitit_local sweep's jobs its grandchildren.  Killed (SIGKILL, SIGTERM), it
+# cannot stop them, and they went on for the whole sweep's work and stayed idle afterwards (~240 MB each).  Each of
+# them runs a watchdog thread that ends its process (os._exit) as soon as the kexp process is gone.
 PARENT_ENV = "KEXP_SWEEP_PARENT"   # the kexp process's pid, inherited by its workers
 POLL_S = 0.5
+MAX_DEPTH = 3                      # how far up the kexp process may be: a worker, a launcher's helper's child
 _WATCHED: list[int] = []
 
 
@@ -156,22 +157,56 @@ def mark_parent() -> None:
     os.environ[PARENT_ENV] = str(os.getpid())
 
 
+def _proc_stat(pid: int) -> tuple[str, int, str] | None:
+    """(state, parent pid, start time) of process ``pid`` from /proc (Linux); None if there is none."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            text = f.read()
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2:].split()   # after "pid (comm) ": state, ppid, …, starttime (22nd field)
+    return fields[0], int(fields[1]), fields[19]
+
+
+def _is_ancestor(pid: int) -> bool:
+    """Whether process ``pid`` is this process's parent or an ancestor at most MAX_DEPTH levels up."""
+    if os.getppid() == pid:
+        return True
+    current = os.getppid()
+    for _ in range(MAX_DEPTH - 1):
+        st = _proc_stat(current)
+        if st is None or st[1] <= 1:
+            return False
+        current = st[1]
+        if current == pid:
+            return True
+    return False
+
+
 def watch_parent() -> bool:
     """Start (once per process) the thread that ends this process when the kexp process is gone, if this process
-    is a direct child of it (a loky worker, a submitit_local job; not the kexp process itself, nor a job on a
-    cluster node).  Returns whether this process is watched."""
+    descends from it (a loky worker, a submitit_local job; not the kexp process itself, nor a job on a cluster
+    node).  Gone: it exited (a zombie), or its pid now names another process (its start time differs); without
+    /proc, a direct child watches for being re-parented.  Returns whether this process is watched."""
     if _WATCHED:
         return True
     try:
         parent = int(os.environ.get(PARENT_ENV, ""))
     except ValueError:
         return False
-    if parent == os.getpid() or os.getppid() != parent:
+    if parent == os.getpid() or not _is_ancestor(parent):
         return False
     _WATCHED.append(parent)
+    first = _proc_stat(parent)
+
+    def gone() -> bool:
+        if first is None:   # no /proc: only a direct child can tell
+            return os.getppid() != parent
+        st = _proc_stat(parent)
+        return st is None or st[0] in "ZX" or st[2] != first[2]
 
     def watch():
-        while os.getppid() == parent:
+        while not gone():
             time.sleep(POLL_S)
         os._exit(3)   # the kexp process is gone: nobody waits for this job's result
 
