@@ -187,7 +187,7 @@ def test_workers_end_when_the_kexp_process_is_killed(tmp_path, launcher, sig):
     args, marker = LAUNCHERS[launcher]
     sweep = tmp_path / "sweep"
     cmd = _script("kexp") + ["--multirun", *args, f"sim.x0={','.join(X0[:2])}", f"hydra.sweep.dir={sweep}", *QUICK,
-                             "sim.T=200.0"]
+                             "sim.T=1000.0"]   # minutes: no job ends by itself within the test
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     pgid = proc.pid
@@ -210,3 +210,27 @@ def test_workers_end_when_the_kexp_process_is_killed(tmp_path, launcher, sig):
             os.kill(pid, signal.SIGKILL)
     summaries = [json.loads(p.read_text()) for p in sweep.glob("*/summary.json")]
     assert summaries and all(s["status"] == "running" for s in summaries)   # killed mid-run: kexp-report says so
+
+
+def test_a_job_whose_kexp_process_is_gone_does_not_start(tmp_path):
+    """watch_parent in a fresh process, with the kexp process named as this test's process (its host, pid and start
+    time): alive, the job is watched and goes on; the same pid with another start time (the pid reused: the kexp
+    process is gone) ends it at once with one line, exit code 3; another host's process is not watched."""
+    import socket
+    import sys
+
+    from kexp.app.sweeper import PARENT_ENV, _proc_stat
+    start = _proc_stat(os.getpid())[1]
+    code = "from kexp.app.sweeper import watch_parent; print(watch_parent())"
+
+    def job(value):
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                              env={**os.environ, PARENT_ENV: value})
+    host = socket.gethostname()
+    alive = job(f"{host}:{os.getpid()}:{start}")
+    assert (alive.returncode, alive.stdout.strip()) == (0, "True"), alive.stderr
+    gone = job(f"{host}:{os.getpid()}:{int(start) + 1}")
+    assert gone.returncode == 3 and gone.stdout == ""
+    assert gone.stderr.strip() == f"kexp: the sweep's kexp process (pid {os.getpid()}) is gone: this job does not start"
+    elsewhere = job(f"{host}-other-node:{os.getpid()}:{int(start) + 1}")
+    assert (elsewhere.returncode, elsewhere.stdout.strip()) == (0, "False"), elsewhere.stderr

@@ -145,65 +145,61 @@ def install_loader() -> None:
 # A joblib sweep's loky workers (and the resource trackers, which live as long as a worker holds their pipe) are
 # children of the kexp process, a submitit_local sweep's jobs its grandchildren.  Killed (SIGKILL, SIGTERM), it
 # cannot stop them, and they went on for the whole sweep's work and stayed idle afterwards (~240 MB each).  Each of
-# them runs a watchdog thread that ends its process (os._exit) as soon as the kexp process is gone.
-PARENT_ENV = "KEXP_SWEEP_PARENT"   # the kexp process's pid, inherited by its workers
+# them runs a watchdog thread that ends its process (os._exit) as soon as the kexp process is gone, and a job that
+# starts after it is gone (a submitit job still being spawned) ends at once.  The kexp process is named by host, pid
+# and start time (a pid alone may be reused); a job on another host (a cluster node) is the scheduler's to end.
+PARENT_ENV = "KEXP_SWEEP_PARENT"   # "host:pid:start time" of the kexp process, inherited by its workers
 POLL_S = 0.5
-MAX_DEPTH = 3                      # how far up the kexp process may be: a worker, a launcher's helper's child
-_WATCHED: list[int] = []
+_WATCHED: list[str] = []
 
 
-def mark_parent() -> None:
-    """In the kexp process: let its workers know which process to end with."""
-    os.environ[PARENT_ENV] = str(os.getpid())
-
-
-def _proc_stat(pid: int) -> tuple[str, int, str] | None:
-    """(state, parent pid, start time) of process ``pid`` from /proc (Linux); None if there is none."""
+def _proc_stat(pid: int) -> tuple[str, str] | None:
+    """(state, start time) of process ``pid`` from /proc (Linux); None if there is no such process (or no /proc)."""
     try:
         with open(f"/proc/{pid}/stat") as f:
             text = f.read()
     except OSError:
         return None
     fields = text[text.rindex(")") + 2:].split()   # after "pid (comm) ": state, ppid, …, starttime (22nd field)
-    return fields[0], int(fields[1]), fields[19]
+    return fields[0], fields[19]
 
 
-def _is_ancestor(pid: int) -> bool:
-    """Whether process ``pid`` is this process's parent or an ancestor at most MAX_DEPTH levels up."""
-    if os.getppid() == pid:
-        return True
-    current = os.getppid()
-    for _ in range(MAX_DEPTH - 1):
-        st = _proc_stat(current)
-        if st is None or st[1] <= 1:
-            return False
-        current = st[1]
-        if current == pid:
-            return True
-    return False
+def mark_parent() -> None:
+    """In the kexp process: let its workers know which process to end with."""
+    import socket
+    st = _proc_stat(os.getpid())
+    os.environ[PARENT_ENV] = f"{socket.gethostname()}:{os.getpid()}:{st[1] if st else ''}"
 
 
 def watch_parent() -> bool:
-    """Start (once per process) the thread that ends this process when the kexp process is gone, if this process
-    descends from it (a loky worker, a submitit_local job; not the kexp process itself, nor a job on a cluster
-    node).  Gone: it exited (a zombie), or its pid now names another process (its start time differs); without
-    /proc, a direct child watches for being re-parented.  Returns whether this process is watched."""
+    """Start (once per process) the thread that ends this process when the kexp process that started the sweep is
+    gone (exited, a zombie, or its pid taken by another process), in a process the sweep started on this host; if it
+    is gone already, end now.  Without /proc only a direct child watches (for being re-parented).  Returns whether
+    this process is watched."""
+    import socket
     if _WATCHED:
         return True
     try:
-        parent = int(os.environ.get(PARENT_ENV, ""))
+        host, pid_text, start = os.environ.get(PARENT_ENV, "").rsplit(":", 2)
+        parent = int(pid_text)
     except ValueError:
         return False
-    if parent == os.getpid() or not _is_ancestor(parent):
+    if host != socket.gethostname() or parent == os.getpid():
         return False
-    _WATCHED.append(parent)
-    first = _proc_stat(parent)
+    if not start and os.getppid() != parent:
+        return False
+    _WATCHED.append(os.environ[PARENT_ENV])
 
     def gone() -> bool:
-        if first is None:   # no /proc: only a direct child can tell
+        if not start:
             return os.getppid() != parent
         st = _proc_stat(parent)
-        return st is None or st[0] in "ZX" or st[2] != first[2]
+        return st is None or st[0] in "ZX" or st[1] != start
+
+    if gone():
+        print(f"kexp: the sweep's kexp process (pid {parent}) is gone: this job does not start", file=sys.stderr,
+              flush=True)
+        os._exit(3)
 
     def watch():
         while not gone():
