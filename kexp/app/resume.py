@@ -211,8 +211,16 @@ def launch(sweeper, launch_batch, batch: Sequence[Sequence[str]], initial_job_id
                 tally.refused.append(num)
                 tally.errors.append(num)
             elif kind == "replace":
-                aside = move_aside(folder)
-                print(f"#{num} runs again ({RESUME_KEY}): its folder held {why}, moved to {aside}", flush=True)
+                try:
+                    aside = move_aside(folder)
+                except OSError as exc:   # left as it is: the job is not run over it
+                    kind = "refuse"
+                    print(f"kexp: error: {folder} holds {why} and cannot be moved aside ({exc.strerror or exc}); "
+                          f"left as it is (job #{num})", file=sys.stderr, flush=True)
+                    tally.refused.append(num)
+                    tally.errors.append(num)
+                else:
+                    print(f"#{num} runs again ({RESUME_KEY}): its folder held {why}, moved to {aside}", flush=True)
             kinds[i] = kind if kind in ("skip", "refuse") else "launch"
     results: list = [None] * len(batch)
     i = 0
