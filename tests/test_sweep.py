@@ -257,11 +257,12 @@ def test_submitit_local_sweep(tmp_path):
 
 def test_a_broken_job_does_not_stop_the_sweep(tmp_path):
     """Job 0 has a 3-component x0 for a 2-state system: it is rejected with its one-line reason in its folder,
-    job 1 still runs, and the report counts the broken one."""
+    job 1 still runs, the report counts the broken one, and the sweep exits 2 after both with a closing line."""
     sweep = tmp_path / "sweep"
     proc = _kexp_multirun(tmp_path, sweep, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
                           "sim.x0=[0.1,0.2,0.3],[0.5,0.5]", "sim.tol=0.5")
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert proc.stderr.strip().splitlines()[-1] == f"kexp: 1 of 2 jobs stopped with an error; see kexp-report {sweep}"
     runs = _summaries(sweep)
     assert runs["0"]["status"] == "error" and "sim.x0=[0.1, 0.2, 0.3]: give 2 finite numbers" in runs["0"]["message"]
     assert runs["1"]["status"] == "completed" and runs["1"]["completed"]

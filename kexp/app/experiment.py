@@ -59,11 +59,12 @@ def _to_dict(cfg: Any) -> dict:
 
 
 def config_dict(cfg: Any) -> dict:
-    """The composed config as plain data, as logged, hashed and keyed: without ``hydra``, without
+    """The composed config as plain data, as logged, hashed and keyed: without ``hydra`` and ``sweep`` (how a sweep
+    is run: ``sweep.resume``), without
     ``logging.writer`` (how the log is written, not what: the bytes are the same either way, so a run's hash and
     logged config do not depend on it), and with the system's params those that apply to ``system.name``
     (:func:`~kexp.app.build.system_settings`)."""
-    out = {k: v for k, v in _to_dict(cfg).items() if k != "hydra"}
+    out = {k: v for k, v in _to_dict(cfg).items() if k not in ("hydra", "sweep")}
     if isinstance(out.get("logging"), dict):
         out["logging"] = {k: v for k, v in out["logging"].items() if k != "writer"}
     if "system" in out:

@@ -74,10 +74,28 @@ def main() -> None:
         print(f"kexp {__version__}")
         return
     precheck(sys.argv[1:])
-    from .sweeper import install, install_loader
+    from .sweeper import install, install_loader, workers_end_with_parent
     install()   # a sweep's batch check composes one job per structure, not every job (kexp/app/sweeper.py)
     install_loader()   # and each worker composes once per structure too
-    _hydra_main()
+    sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
+    with workers_end_with_parent(sweep):   # a sweep's worker processes end when this process is killed
+        _hydra_main()
+    _sweep_verdict()
+
+
+def _sweep_verdict() -> None:
+    """After a sweep (kexp.app.resume): the closing lines, and exit code 2 if any job stopped with an error."""
+    from . import resume
+    tally = resume.TALLY
+    if tally is None:
+        return
+    out, err = tally.closing_lines()
+    for line in out:
+        print(line, flush=True)
+    for line in err:
+        print(line, file=sys.stderr, flush=True)
+    if tally.errors:
+        sys.exit(2)
 
 
 if __name__ == "__main__":

@@ -109,6 +109,13 @@ class CacheSchema:
     dir: Optional[str] = None
 
 
+@dataclass
+class SweepSchema:
+    """How a sweep is run, not what its jobs compute: not in a run's config hash (kexp.app.experiment.config_dict)
+    nor in a job's overrides (kexp.app.resume)."""
+    resume: bool = False              # sweep.resume=true: skip the jobs whose folder holds their completed run
+
+
 def _build() -> type:
     from ..clf import ClfConfig
     from ..control import LmpcConfig
@@ -160,6 +167,7 @@ def _build() -> type:
         sim: sim_s = field(default_factory=sim_s)
         logging: LoggingSchema = field(default_factory=LoggingSchema)
         cache: CacheSchema = field(default_factory=CacheSchema)
+        sweep: SweepSchema = field(default_factory=SweepSchema)
 
     KexpConfig.__module__ = __name__
     KexpConfig.__qualname__ = "KexpConfig"

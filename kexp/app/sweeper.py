@@ -19,6 +19,8 @@ from __future__ import annotations
 import copy
 import os
 import sys
+import threading
+import time
 from typing import Sequence
 
 from hydra._internal.config_loader_impl import ConfigLoaderImpl, get_overrides_dirname
@@ -74,6 +76,13 @@ def install() -> None:
 
     validate_batch_is_legal._kexp = True
     BasicSweeper.validate_batch_is_legal = validate_batch_is_legal
+    original_sweep = BasicSweeper.sweep
+
+    def sweep(self, arguments):   # sweep.resume, a folder holding runs refused, the jobs' outcomes (kexp.app.resume)
+        from .resume import sweep as resumable_sweep
+        return resumable_sweep(original_sweep, self, arguments)
+
+    BasicSweeper.sweep = sweep
 
 
 # -- each job's composition in its worker -----------------------------------------------------------------------
@@ -93,6 +102,7 @@ class StructureCachingConfigLoader(ConfigLoaderImpl):
     imports it."""
 
     def load_sweep_config(self, master_config, sweep_overrides):
+        watch_parent()   # where a job runs in a child of the kexp process, it ends with the kexp process
         return compose_job(self, master_config, list(sweep_overrides))
 
 
@@ -129,3 +139,99 @@ def install_loader() -> None:
     """Make Hydra create its config loader as :class:`StructureCachingConfigLoader` (idempotent)."""
     import hydra._internal.hydra as hydra_core
     hydra_core.ConfigLoaderImpl = StructureCachingConfigLoader
+
+
+# -- workers end with the kexp process ----------------------------------------------------------------------------
+# A joblib sweep's loky workers (and the resource trackers, which live as long as a worker holds their pipe) are
+# children of the kexp process, a submitit_local sweep's jobs its grandchildren.  Killed (SIGKILL, SIGTERM), it
+# cannot stop them, and they went on for the whole sweep's work and stayed idle afterwards (~240 MB each).  Each of
+# them runs a watchdog thread that ends its process (os._exit) as soon as the kexp process is gone, and a job that
+# starts after it is gone (a submitit job still being spawned) ends at once.  The kexp process is named by host, pid
+# and start time (a pid alone may be reused); a job on another host (a cluster node) is the scheduler's to end.
+PARENT_ENV = "KEXP_SWEEP_PARENT"   # "host:pid:start time" of the kexp process, inherited by its workers
+POLL_S = 0.5
+_WATCHED: list[str] = []
+
+
+def _proc_stat(pid: int) -> tuple[str, str] | None:
+    """(state, start time) of process ``pid`` from /proc (Linux); None if there is no such process (or no /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            text = f.read()
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2:].split()   # after "pid (comm) ": state, ppid, …, starttime (22nd field)
+    return fields[0], fields[19]
+
+
+def mark_parent() -> None:
+    """In the kexp process: let its workers know which process to end with."""
+    import socket
+    st = _proc_stat(os.getpid())
+    os.environ[PARENT_ENV] = f"{socket.gethostname()}:{os.getpid()}:{st[1] if st else ''}"
+
+
+def watch_parent() -> bool:
+    """Start (once per process) the thread that ends this process when the kexp process that started the sweep is
+    gone (exited, a zombie, or its pid taken by another process), in a process the sweep started on this host; if it
+    is gone already, end now.  Without /proc only a direct child watches (for being re-parented).  Returns whether
+    this process is watched."""
+    import socket
+    if _WATCHED:
+        return True
+    try:
+        host, pid_text, start = os.environ.get(PARENT_ENV, "").rsplit(":", 2)
+        parent = int(pid_text)
+    except ValueError:
+        return False
+    if host != socket.gethostname() or parent == os.getpid():
+        return False
+    if not start and os.getppid() != parent:
+        return False
+    _WATCHED.append(os.environ[PARENT_ENV])
+
+    def gone() -> bool:
+        if not start:
+            return os.getppid() != parent
+        st = _proc_stat(parent)
+        return st is None or st[0] in "ZX" or st[1] != start
+
+    if gone():
+        print(f"kexp: the sweep's kexp process (pid {parent}) is gone: this job does not start", file=sys.stderr,
+              flush=True)
+        os._exit(3)
+
+    def watch():
+        while not gone():
+            time.sleep(POLL_S)
+        os._exit(3)   # the kexp process is gone: nobody waits for this job's result
+
+    threading.Thread(target=watch, name="kexp-parent-watch", daemon=True).start()
+    return True
+
+
+class workers_end_with_parent:
+    """Context for the kexp process (``sweep``: it runs a sweep): every loky worker joblib starts runs
+    :func:`watch_parent` when it starts (an initializer; idle workers too), every sweep job when it starts (any
+    launcher: :class:`StructureCachingConfigLoader`)."""
+
+    def __init__(self, sweep: bool = True):
+        self.sweep = sweep
+
+    def __enter__(self):
+        mark_parent()
+        self._config = None
+        if not self.sweep:
+            return self
+        try:
+            from joblib import parallel_config
+        except ImportError:   # no joblib: the jobs' own call suffices
+            return self
+        self._config = parallel_config(backend="loky", initializer=watch_parent)
+        self._config.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self._config is not None:
+            self._config.__exit__(*exc)
+        return False

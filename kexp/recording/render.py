@@ -276,6 +276,23 @@ def _phase_bounds(log: RunLog) -> tuple | None:
     return (float(lo[0] - pad[0]), float(hi[0] + pad[0])), (float(lo[1] - pad[1]), float(hi[1] + pad[1]))
 
 
+# -- the streams' lifetime -------------------------------------------------------------------------------------
+# Each Rerun RecordingStream runs two native threads (ChunkBatcher, RecordingStream) until the SDK drops it, and
+# rerun-sdk 0.41 drops a stream only when nothing refers to it *and* its orphans are cleaned up
+# (bindings.flush_and_cleanup_orphaned_recordings; RecordingStream.__del__ only disconnects them).  The default
+# blueprint of ``save(path, default_blueprint=...)`` is a second stream (rerun.blueprint.api.create_in_memory_blueprint)
+# whose memory sink and its storage refer to each other, so it is never dropped: 4 threads and ~2 MB per render,
+# 200 renders in a sweep worker → 800 threads.  :func:`render` builds that blueprint stream itself (as
+# create_in_memory_blueprint does) so that it can disconnect it, which breaks the cycle.
+def _blueprint_stream(rr, blueprint):
+    """The blueprint's own stream and its in-memory storage (what ``save`` takes as ``default_blueprint``)."""
+    stream = rr.RecordingStream._from_native(rr.bindings.new_blueprint(
+        application_id=APPLICATION_ID, make_default=False, make_thread_default=False, default_enabled=True))
+    stream.set_time("blueprint", sequence=0)
+    blueprint.to_blueprint()._log_to_stream(stream)
+    return stream, stream.memory_recording().storage
+
+
 # -- public API ------------------------------------------------------------------------------------------------
 def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
     """Render the run log at ``mcap_path`` into a Rerun recording at ``rrd_path`` (default: the same path with
@@ -315,9 +332,12 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
                           "unset RERUN to render")
     rrd_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = rrd_path.with_name(f".{rrd_path.name}.{os.getpid()}.tmp")
-    rec.save(tmp, default_blueprint=blueprint)
     done = False
+    bp_stream = bp_storage = None
     try:
+        bp_stream, bp_storage = _blueprint_stream(rr, blueprint)
+        # rec.save(tmp, default_blueprint=blueprint), with the blueprint's stream in hand
+        rr.bindings.save(path=str(tmp), default_blueprint=bp_storage, recording=rec.to_native())
         conf = log.one("/config") or {}
         system = ((conf.get("config") or {}).get("system") or {}).get("name")
         rec.send_recording_name(f"kexp {system or ''} {conf.get('config_hash', '')}".strip())
@@ -332,6 +352,10 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
         done = True
     finally:
         rec.disconnect()   # closes the file sink: the footer is written and the .rrd is complete
+        if bp_stream is not None:
+            bp_stream.disconnect()   # drops its memory sink: the blueprint stream is no longer kept alive
+        del rec, bp_stream, bp_storage
+        rr.bindings.flush_and_cleanup_orphaned_recordings()   # drops both streams and ends their threads
         try:
             if done:
                 os.replace(tmp, rrd_path)
