@@ -330,7 +330,10 @@ class RunLogger(LogHelpers):
             pass
         finally:
             self._w.stop()
-            self._f.close()
+            try:
+                self._f.close()      # the file is closed even when its last write fails (a full disk)
+            except OSError:
+                pass
 
     def _stop_thread(self) -> None:
         if self._queue is not None and self._thread.is_alive():
