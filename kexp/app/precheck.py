@@ -45,16 +45,16 @@ def precheck(argv: list[str]) -> None:
     if (args.help or args.hydra_help or args.cfg or args.info or args.shell_completion or args.experimental_rerun
             or args.config_path):
         return  # Hydra shows something, or finds the config relative to its own main: leave it to Hydra
-    overrides, config_name = list(args.overrides), args.config_name or "config"
+    argv, config_name, multirun = list(args.overrides), args.config_name or "config", args.multirun
     if args.config_dir:
-        if any(a.startswith(("hydra.searchpath=", "+hydra.searchpath=")) for a in overrides):
+        if any(a.startswith(("hydra.searchpath=", "+hydra.searchpath=")) for a in argv):
             return  # both: leave it to Hydra
         # --config-dir D: Hydra adds D to the search path (after kexp's conf/); the same for this check
-        overrides.append(f"hydra.searchpath=[file://{os.path.abspath(args.config_dir)}]")
-    _check_output_dir(overrides, "hydra.sweep.dir" if args.multirun else "hydra.run.dir")
-    if args.multirun:
-        return _precheck_sweep(overrides, config_name)
-    _compose_or_exit(overrides, config_name)
+        argv.append(f"hydra.searchpath=[file://{os.path.abspath(args.config_dir)}]")
+    _check_output_dir(argv, "hydra.sweep.dir" if multirun else "hydra.run.dir")
+    if multirun:
+        return _precheck_sweep(argv, config_name)
+    _compose_or_exit(argv, config_name)
 
 
 class _ArgumentError(Exception):
