@@ -68,7 +68,7 @@ def test_pairs_started_together_never_share_a_folder(i, cache, tmp_path):
     procs = [kexp(*SMALL, f"cache.dir={cache}", *extra, cwd=tmp_path, wait=False) for _ in range(2)]
     outs = [p.communicate(timeout=300) + (p.returncode,) for p in procs]
     for out, err, code in outs:
-        assert code == 0 and err == "", err
+        assert code == 0 and err == "", [(o[-3000:], e) for o, e, _ in outs]
     folders = [files_line(out) for out, _, _ in outs]
     assert folders[0] != folders[1]
     for folder in folders:
