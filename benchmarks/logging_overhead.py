@@ -113,14 +113,15 @@ def main():
                 spent[0] = kern[0] = 0.0
                 if background == "process":
                     started_ahead()
+                path = Path(tmp) / f"r{i}-{modes.index(mode)}.mcap"   # one file per run: a logger creates its own
                 t0, c0 = time.perf_counter(), time.thread_time()    # the logger's start counts
                 if mode == "no log":
                     logger = None
                 elif background == "process":
-                    logger = ProcessRunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred,
+                    logger = ProcessRunLogger(path, prediction_every=pred,
                                               last_step=(sim.n_steps - 1) * sim.dt)   # as the app passes it
                 else:
-                    logger = RunLogger(Path(tmp) / f"r{i}.mcap", prediction_every=pred, background=background,
+                    logger = RunLogger(path, prediction_every=pred, background=background,
                                        compress_thread=compress_thread)
                 cb = logged(logger) if logger else None
                 spent[0] += time.perf_counter() - t0

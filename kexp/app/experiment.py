@@ -31,6 +31,8 @@ from .build import (build_clf, build_controller, build_controller_spec, build_da
                     check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
                     system_settings)
 from .cache import Cache, clf_key, model_key
+from .faults import OutputError, create_exclusive, fault_message, write_json, writing
+from .run_folder import RunFolderError, run_files
 from .lock import installed_version, lock_info
 from .progress import Progress
 
@@ -48,13 +50,16 @@ def config_hash(cfg_dict: dict) -> str:
 
 def _to_dict(cfg: Any) -> dict:
     from omegaconf import DictConfig as _DC, OmegaConf
-    from omegaconf.errors import MissingMandatoryValue
+    from omegaconf.errors import InterpolationResolutionError, MissingMandatoryValue
     if isinstance(cfg, _DC):
         try:
             return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
         except MissingMandatoryValue as exc:
             key = getattr(exc, "full_key", None) or "a key"
             raise ConfigError(f"{key} is missing (???): set it, e.g. {key}=<value>") from None
+        except InterpolationResolutionError as exc:   # ${oc.env:UNSET}, ${nope.x}: one line, not a traceback
+            from .precheck import interpolation_error_line
+            raise ConfigError(interpolation_error_line(exc)) from None
     return dict(cfg)
 
 
@@ -112,9 +117,29 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     when stderr is a terminal; a sweep job passes False, its bars would overwrite each other).  The log is written
     in this process (``logging.writer=sync``; RunLogger's writer thread measured slower on this 2-core machine) or
     by a child process (``process``: the same bytes, less of the run's time for runs of 10 s and more;
-    benchmarks/logging_overhead.py)."""
+    benchmarks/logging_overhead.py).
+
+    A folder that holds a run already (kexp.app.run_folder.run_files) is refused (RunFolderError) and left as it
+    is: every file is created exclusively.  A file that cannot be written (disk full, a size limit, a folder in its
+    place) raises :class:`~kexp.app.faults.OutputError`, whose one line says what was saved; what was written
+    before stays (summary.json is replaced whole or not at all)."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        taken = run_files(out_dir)
+        if taken:
+            raise RunFolderError(f"{out_dir} holds a run already ({', '.join(taken)}); kexp never overwrites a run: "
+                                 "give another folder")
+        with writing(out_dir):
+            out_dir.mkdir(parents=True, exist_ok=True)
+        return _run(cfg, out_dir, echo, auto_progress)
+    except OSError as exc:
+        if isinstance(exc, KexpError):
+            raise
+        raise OutputError(fault_message(exc, out_dir)) from exc
+
+
+def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
+    """:func:`run`'s work, in ``out_dir`` (made, holding no run)."""
     t0 = time.perf_counter()
     cfg_dict = config_dict(cfg)
     chash = config_hash(cfg_dict)
@@ -144,7 +169,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
     check_memory_budget(spec, k_max, system.m)
     check_run_size(sim_cfg, system, k_max, sampler if file_data is None else None, data_cfg)
     summary_path = out_dir / "summary.json"
-    summary_path.write_text(json.dumps({"status": "running", "completed": False, "config_hash": chash}, indent=2))
+    create_exclusive(summary_path, json.dumps({"status": "running", "completed": False, "config_hash": chash},
+                                              indent=2))
     # where the job's time goes (summary.json "timing", benchmarks/sweep.py): seconds per phase, in order
     phases: dict[str, float] = {}
     mark = [t0]
@@ -174,7 +200,7 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         **cfg_dict, "data": {**cfg_dict["data"], "files_digest": file_data.report.digest}}, FORMAT_VERSION)
     model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
                                 KoopmanBilinearModel.load)
-    model_path = model.save(out_dir / "model.npz")
+    model_path = _save_model(model, out_dir / "model.npz")
     phase("model_s")
     echo(model.summary())
     rms = model.report.get("data_rms")
@@ -216,7 +242,8 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         bar.update()
 
     try:
-        with threadpool_limits(limits=1):  # BLAS threads on tiny products cost 10-100× (design §2.11)
+        # BLAS threads on tiny products cost 10-100× (design §2.11); a failed write names the log
+        with threadpool_limits(limits=1), writing(out_dir / "run.mcap"):
             result = closed_loop(plant, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
                                  on_step=on_step, noise_scale=rms)
     except BaseException:
@@ -241,14 +268,9 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         logger.log_summary(t_end, result.status, result.message, deterministic, completed=True,
                            perturbation=perturbation)
         logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock)
-        logger.close()
+        with writing(logger.path):
+            logger.close()
         files["mcap"] = logger.path.name
-        if log_cfg["rrd"]:
-            from ..recording.render import render
-            try:
-                files["rrd"] = render(logger.path, out_dir / "run.rrd").name
-            except KexpError as exc:  # the run and its log are complete; say why there is no recording
-                echo(f"warning: no run.rrd: {exc} (render later with `kexp-render {logger.path}`)")
     metrics = {
         "status": result.status,
         "completed": True,
@@ -271,12 +293,23 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
         "files": files,
     }
-    phase("finish_s")   # the log's last messages, the Rerun recording, the summary
     phases["closed_loop"] = {"control_s": control_s, "integrate_s": result.integrate_s,
                              "logging_s": log_seconds[0]}
     metrics["timing"] = phases
-    metrics["wall_time_s"] = mark[0] - t0   # the phases' sum: the run up to its summary
-    summary_path.write_text(json.dumps(plain(metrics), indent=2))
+
+    def write_summary() -> None:
+        phase("finish_s")   # the log's last messages, the Rerun recording, the summary
+        metrics["wall_time_s"] = mark[0] - t0   # the phases' sum: the run up to its summary
+        write_json(summary_path, plain(metrics))
+    write_summary()   # the metrics are saved before the recording is rendered, whatever happens to it
+    if logger is not None and log_cfg["rrd"]:
+        warning = _render(logger.path, out_dir / "run.rrd")
+        if warning is None:
+            files["rrd"] = "run.rrd"
+        else:   # the run and its log are complete; say why there is no recording
+            echo(f"warning: {warning}")
+            metrics["warnings"] = [warning]
+        write_summary()
     echo(f"result: {'SUCCESS' if m.success else 'FAILED'} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
          f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "
          f"fallbacks {m.fallbacks}")
@@ -284,3 +317,43 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
          f"max {m.solve_time_max * 1e3:.2f} ms")
     echo(f"files: {out_dir.resolve()} ({', '.join(files.values())})")
     return metrics
+
+
+def _save_model(model, path: Path) -> Path:
+    """Save ``model`` at ``path``, created exclusively (a file there is never replaced); a failed save leaves no
+    file of it."""
+    create_exclusive(path)
+    try:
+        with writing(path):
+            return model.save(path)
+    except BaseException:
+        for p in (path, path.with_name(path.name + ".tmp.npz")):   # KoopmanBilinearModel.save's temporary file
+            p.unlink(missing_ok=True)
+        raise
+
+
+def _render(log_path: Path, rrd_path: Path) -> str | None:
+    """Render the run log into ``rrd_path`` (never replacing a file there: the recording is made under a
+    temporary name and linked into place); None, or the warning that says why there is no recording (a render
+    error, a full disk, …: the run and its log are complete)."""
+    import os
+    from ..recording.render import render
+    tmp = rrd_path.with_name(f".{rrd_path.stem}.{os.getpid()}{rrd_path.suffix}")
+    try:
+        render(log_path, tmp)
+        try:
+            os.link(tmp, rrd_path)   # exclusive: fails if rrd_path exists
+        except FileExistsError:
+            return (f"no {rrd_path.name}: {rrd_path} exists already (left as it is; render with `kexp-render "
+                    f"{log_path} -o <file>`)")
+        except OSError:              # a file system without hard links
+            if os.path.lexists(rrd_path):
+                return f"no {rrd_path.name}: {rrd_path} exists already"
+            os.replace(tmp, rrd_path)
+        return None
+    except (KexpError, OSError) as exc:
+        reason = str(exc) if isinstance(exc, KexpError) else fault_message(exc, rrd_path.parent).split(";")[0]
+        return (f"no {rrd_path.name}: {reason.replace(str(tmp), str(rrd_path))} (render later with "
+                f"`kexp-render {log_path}`)")
+    finally:
+        tmp.unlink(missing_ok=True)

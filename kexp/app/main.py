@@ -11,9 +11,12 @@ import numpy as np
 from omegaconf import DictConfig
 
 from ..errors import KexpError
+from . import run_folder
 from .conf import CONF_DIR
 from .experiment import run
 from .precheck import precheck
+
+run_folder.install()   # here, not only in main(): a joblib worker imports this module to unpickle the task
 
 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
@@ -24,6 +27,9 @@ def _hydra_main(cfg: DictConfig) -> None:
     out_dir = Path(hc.runtime.output_dir)
     sweep_job = hc.mode == RunMode.MULTIRUN
     try:
+        refused = run_folder.refusal(out_dir)   # its folder holds another run: nothing was written there
+        if refused is not None:
+            raise refused
         if sweep_job:  # one line per job (parallel jobs would interleave the model and CLF summaries)
             print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only, auto_progress=False),
                            out_dir), flush=True)
@@ -31,7 +37,8 @@ def _hydra_main(cfg: DictConfig) -> None:
             run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback
         print(f"kexp: error: {exc}" + (f" (job #{hc.job.num}: {out_dir})" if sweep_job else ""), file=sys.stderr)
-        _error_summary(out_dir, exc)
+        if not isinstance(exc, run_folder.RunFolderError):   # another run's folder is never written to
+            _error_summary(out_dir, exc)
         if not sweep_job:
             sys.exit(2)  # a single run: exit code 2; in a sweep the other jobs go on, the report counts this one
     except Exception as exc:  # a bug: its traceback is Hydra's to show, but the summary says the run failed
@@ -41,13 +48,28 @@ def _hydra_main(cfg: DictConfig) -> None:
 
 def _error_summary(out_dir: Path, exc: BaseException, internal: bool = False) -> None:
     """summary.json of a run that stopped with ``exc`` ("status": "error"; not "running", which kexp-report
-    reads as a killed run); ``internal``: an unexpected exception, a bug to report with its traceback."""
+    reads as a killed run); ``internal``: an unexpected exception, a bug to report with its traceback.  A summary
+    the run wrote already keeps what it holds: a completed run's metrics and status stay, the error is added
+    ("error"); a running one's keys stay besides the error's.  Replaced whole or not at all (a full disk leaves
+    the previous summary)."""
+    from .faults import write_json
     message = f"internal error: {type(exc).__name__}: {exc}" if internal else str(exc)
+    error = {"message": message, "error_type": type(exc).__name__}
+    path = out_dir / "summary.json"
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "summary.json").write_text(json.dumps(
-            {"status": "error", "completed": False, "message": message, "error_type": type(exc).__name__},
-            indent=2))
+        try:
+            before = json.loads(path.read_text())
+        except FileNotFoundError:
+            before = None
+        except (OSError, ValueError):
+            return   # unreadable (a folder, say): left as it is
+        if not isinstance(before, dict):
+            summary = {"status": "error", "completed": False, **error}
+        elif before.get("completed") is True:
+            summary = {**before, "error": error}
+        else:
+            summary = {**before, "status": "error", "completed": False, **error}
+        write_json(path, summary)
     except OSError:
         pass   # the folder itself failed: the error printed is what the user gets
 
@@ -74,6 +96,7 @@ def main() -> None:
         print(f"kexp {__version__}")
         return
     precheck(sys.argv[1:])
+    run_folder.install()   # each run claims its folder before anything is written there (kexp.app.run_folder)
     from .sweeper import install, install_loader, workers_end_with_parent
     install()   # a sweep's batch check composes one job per structure, not every job (kexp/app/sweeper.py)
     install_loader()   # and each worker composes once per structure too

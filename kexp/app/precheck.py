@@ -3,6 +3,7 @@ the schema or a config file that is not YAML is one line on stderr and exit code
 lines, or a traceback, and exits 1)."""
 from __future__ import annotations
 
+import os
 import sys
 
 from .conf import CONF_DIR
@@ -34,21 +35,51 @@ def composition_error_line(exc: BaseException) -> str:
 
 def precheck(argv: list[str]) -> None:
     """For a single run: compose the config first, so an unknown group option, preset or key, a value of the wrong
-    type (the schema, kexp/app/schema.py) or a bad override is one line and exit code 2 (Hydra itself prints
-    several lines and exits 1)."""
-    argv, config_dirs = _split_config_dirs(argv)
-    if config_dirs:
+    type (the schema, kexp/app/schema.py), an interpolation that does not resolve or a bad override is one line and
+    exit code 2 (Hydra itself prints several lines, or a traceback, and exits 1).  The command line is read with
+    Hydra's own parser, so the overrides are checked with options among them too (``-cn NAME``, ``--config-dir D``,
+    ``-m``); what only shows something (``--help``, ``--cfg``, ``--info``, …) and ``--config-path`` are Hydra's."""
+    args = _hydra_args(argv)
+    if args is None:
+        return
+    if (args.help or args.hydra_help or args.cfg or args.info or args.shell_completion or args.experimental_rerun
+            or args.config_path):
+        return  # Hydra shows something, or finds the config relative to its own main: leave it to Hydra
+    argv, config_name, multirun = list(args.overrides), args.config_name or "config", args.multirun
+    if args.config_dir:
         if any(a.startswith(("hydra.searchpath=", "+hydra.searchpath=")) for a in argv):
             return  # both: leave it to Hydra
         # --config-dir D: Hydra adds D to the search path (after kexp's conf/); the same for this check
-        argv = argv + [f"hydra.searchpath=[{','.join('file://' + d for d in config_dirs)}]"]
-    multirun = any(a in ("-m", "--multirun") for a in argv)
+        argv.append(f"hydra.searchpath=[file://{os.path.abspath(args.config_dir)}]")
     _check_output_dir(argv, "hydra.sweep.dir" if multirun else "hydra.run.dir")
     if multirun:
-        return _precheck_sweep(argv)
-    if any(a.startswith("-") for a in argv):  # --cfg, --help, ...: leave it to Hydra
-        return
-    _compose_or_exit(argv)
+        return _precheck_sweep(argv, config_name)
+    _compose_or_exit(argv, config_name)
+
+
+class _ArgumentError(Exception):
+    pass
+
+
+def _hydra_args(argv: list[str]):
+    """``argv`` read by Hydra's own command-line parser (its namespace: overrides, multirun, config_name, …); None
+    for ``--version`` (Hydra's to answer).  A command line it refuses is one line on stderr and exit code 2 (Hydra
+    prints its usage, ten lines, and the error)."""
+    if "--version" in argv:
+        return None
+    from hydra._internal.utils import get_args_parser
+    parser = get_args_parser()
+
+    def error(message):
+        raise _ArgumentError(message)
+    parser.error = error
+    try:
+        return parser.parse_args(argv)
+    except _ArgumentError as exc:
+        hint = "; give the options (-m, -cn NAME, …) before or after all the overrides" if "unrecognized" in str(
+            exc) else ""
+        print(f"kexp: error: {exc}{hint} (see kexp --help)", file=sys.stderr)
+        sys.exit(2)
 
 
 def _check_output_dir(argv: list[str], key: str) -> None:
@@ -77,18 +108,69 @@ def _check_output_dir(argv: list[str], key: str) -> None:
         sys.exit(2)
 
 
-def _compose_or_exit(overrides: list[str]) -> None:
-    """Compose the config with ``overrides`` (a single run); a preset or group file that is not YAML or any other
-    composition error is one line on stderr and exit code 2."""
+def _compose_or_exit(overrides: list[str], config_name: str = "config") -> None:
+    """Compose the config ``config_name`` with ``overrides`` (a single run); a preset or group file that is not
+    YAML, any other composition error, or an interpolation that does not resolve (``${oc.env:UNSET}``,
+    ``${nope.x}``; ``${hydra:…}`` ones are Hydra's to resolve later) is one line on stderr and exit code 2."""
     from hydra import compose, initialize_config_dir
 
     def compose_it():
         with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-            compose(config_name="config", overrides=overrides)
+            cfg = compose(config_name=config_name, overrides=overrides)
+        line = unresolved_line(cfg)
+        if line:
+            print(f"kexp: error: {line}", file=sys.stderr)
+            sys.exit(2)
     _one_line_or_exit(compose_it, overrides=overrides)
 
 
-def _compose_master_or_exit(overrides: list[str]) -> None:
+def unresolved_line(cfg) -> str | None:
+    """One line for the first interpolation of ``cfg`` (composed, without its ``hydra`` node) that does not
+    resolve (:func:`interpolation_error_line`), None if all do; those that use ``${hydra:…}`` are left out (Hydra
+    sets what they refer to when the run starts)."""
+    from omegaconf import DictConfig, ListConfig, OmegaConf
+    from omegaconf.errors import InterpolationResolutionError
+
+    def walk(node, prefix):
+        keys = list(node.keys()) if isinstance(node, DictConfig) else range(len(node))
+        for key in keys:
+            child = node._get_node(key)
+            path = f"{prefix}[{key}]" if isinstance(node, ListConfig) else f"{prefix}{'.' if prefix else ''}{key}"
+            if OmegaConf.is_interpolation(node, key):
+                if "hydra" in str(child._value()):
+                    continue
+                try:
+                    child._dereference_node()
+                except InterpolationResolutionError as exc:
+                    return interpolation_error_line(exc, str(child._value()), path)
+                except Exception:  # noqa: BLE001 - anything else is the run's to report
+                    continue
+            elif isinstance(child, (DictConfig, ListConfig)) and not child._is_none() and not child._is_missing():
+                found = walk(child, path)
+                if found:
+                    return found
+        return None
+    return walk(cfg, "")
+
+
+def interpolation_error_line(exc: BaseException, raw: str | None = None, key: str | None = None) -> str:
+    """One line for an interpolation that does not resolve (``raw``: the value as written), e.g.
+    "sim.T=${oc.env:UNSET}: Environment variable 'UNSET' not found; set the variable, or give a default:
+    ${oc.env:NAME,value}" (``key``: the key's path, when ``exc`` does not say)."""
+    key = key or getattr(exc, "full_key", None) or "a key"
+    if raw is None:
+        try:
+            raw = exc.child_node._value()
+        except Exception:  # noqa: BLE001 - the value is shown only when it can be found
+            raw = None
+    raw = raw if isinstance(raw, str) else None
+    detail = str(exc).splitlines()[0].strip().removeprefix("KeyError raised while resolving interpolation: ")
+    fix = ("set the variable, or give a default: ${oc.env:NAME,value}" if "Environment variable" in detail
+           else "interpolate a key that exists, or give a value")
+    return f"{key}{'=' + raw if raw else ''}: {detail.strip(chr(34))}; {fix}"
+
+
+def _compose_master_or_exit(overrides: list[str], config_name: str = "config") -> None:
     """A sweep's first step in Hydra: its master config, composed with every override the way Hydra composes it
     for a multirun (a swept group choice is left out, a swept value not applied).  What fails there fails the
     whole sweep before any job, in Hydra with several lines or a traceback (a config file that is not YAML):
@@ -100,7 +182,8 @@ def _compose_master_or_exit(overrides: list[str]) -> None:
     from hydra.types import RunMode
     JobRuntime.instance().set("name", "kexp")
     loader = ConfigLoaderImpl(config_search_path=create_config_search_path(CONF_DIR))
-    _one_line_or_exit(lambda: loader.load_configuration("config", overrides=overrides, run_mode=RunMode.MULTIRUN),
+    _one_line_or_exit(lambda: loader.load_configuration(config_name, overrides=overrides,
+                                                        run_mode=RunMode.MULTIRUN),
                       " (no job started)", overrides=overrides)
 
 
@@ -155,24 +238,6 @@ def null_node_line(overrides) -> str | None:
     return None
 
 
-def _split_config_dirs(argv: list[str]) -> tuple[list[str], list[str]]:
-    """(argv without ``--config-dir D`` / ``--config-dir=D`` / ``-cd D``, the absolute directories D)."""
-    import os
-    rest, dirs, i = [], [], 0
-    while i < len(argv):
-        a = argv[i]
-        if a in ("--config-dir", "-cd") and i + 1 < len(argv):
-            dirs.append(os.path.abspath(argv[i + 1]))
-            i += 2
-            continue
-        if a.startswith("--config-dir="):
-            dirs.append(os.path.abspath(a.split("=", 1)[1]))
-        else:
-            rest.append(a)
-        i += 1
-    return rest, dirs
-
-
 def yaml_error_line(exc: BaseException) -> str:
     """One line for a config file that does not parse, e.g. "/home/me/conf/experiment/mine.yaml: not valid YAML:
     expected ',' or ']', but got ':' (line 2, column 6)"."""
@@ -183,7 +248,7 @@ def yaml_error_line(exc: BaseException) -> str:
     return f"{name}: not valid YAML: {problem}{where}"
 
 
-def _precheck_sweep(argv: list[str]) -> None:
+def _precheck_sweep(overrides: list[str], config_name: str = "config") -> None:
     """For a multirun: Hydra composes every job's config before it launches any, and one value of the wrong type
     or a misspelled key stops the whole sweep with a many-line message.  Check each swept value against the schema
     first (microseconds each, no composition) and say which one in one line, exit code 2; then compose the sweep's
@@ -195,12 +260,12 @@ def _precheck_sweep(argv: list[str]) -> None:
     from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
     try:
-        overrides = OverridesParser.create().parse_overrides([a for a in argv if not a.startswith("-")])
+        parsed = OverridesParser.create().parse_overrides(overrides)
     except HydraException:
         return  # a syntax error: Hydra's own message names it
     from .schema import filled
     schema = filled(_register_schema())
-    for ov in overrides:
+    for ov in parsed:
         key = ov.key_or_group
         if ov.is_add() or ov.is_delete() or key.startswith("hydra") or "." not in key:
             continue
@@ -215,4 +280,4 @@ def _precheck_sweep(argv: list[str]) -> None:
                 wrapped.__cause__ = exc
                 print(f"kexp: error: {composition_error_line(wrapped)}", file=sys.stderr)
                 sys.exit(2)
-    _compose_master_or_exit([a for a in argv if not a.startswith("-")])
+    _compose_master_or_exit(overrides, config_name)

@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+from .run_folder import holds_run
+
 RESUME_KEY = "sweep.resume"
-RUN_FILES = ("summary.json", "model.npz", "run.mcap", "run.rrd", ".hydra")   # what shows a folder holds a run
 
 
 @dataclass
@@ -65,11 +66,6 @@ TALLY: Tally | None = None   # the last sweep of this process (the kexp command 
 
 def _key(override: str) -> str:
     return override.split("=", 1)[0].lstrip("+~")
-
-
-def holds_run(folder: Path) -> bool:
-    """Whether ``folder`` holds a run (one of its files or Hydra's record of it), in whatever state."""
-    return any(os.path.lexists(folder / name) for name in RUN_FILES)
 
 
 def folders_with_runs(sweep_dir: Path) -> list[Path]:

@@ -45,7 +45,8 @@ _CHILD = ("import sys; sys.path[:] = sys.argv[1:]; from kexp.recording.process_l
 
 class ProcessRunLogger(LogHelpers):
     """:class:`~kexp.recording.writer.RunLogger`'s interface and bytes, written by a child process (module
-    docstring).  The file is created at once (an unwritable path raises OSError here); an unknown topic raises
+    docstring).  The file is created at once, exclusively (anything at ``path`` raises FileExistsError, an
+    unwritable path OSError, here), and the child writes into it; an unknown topic raises
     KeyError in the caller, as with RunLogger, and messages are encoded in the caller.  What the run logs is
     handed over when RunLogger would flush it (its :class:`~kexp.recording.writer.FlushClock`, every
     ``flush_every`` simulated seconds), so the child flushes as soon as it has it, and a killed run loses what a
@@ -60,7 +61,7 @@ class ProcessRunLogger(LogHelpers):
         check_settings(flush_every, prediction_every)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        open(self.path, "wb").close()           # the caller learns now if the file cannot be written
+        open(self.path, "xb").close()           # the caller learns now if the file cannot be written
         self.flush_every = flush_every
         self.prediction_every = prediction_every
         self.hand_over_every = None if hand_over_every is None else max(1, int(hand_over_every))
@@ -281,7 +282,7 @@ def main() -> int:
                                        "process: logging.writer=sync")
                 # chunks compressed here, at once: a compression thread would only add its hand-over to close()
                 logger = RunLogger(path, flush_every=flush_every, prediction_every=prediction_every,
-                                   compress_thread=False)
+                                   compress_thread=False, exclusive=False)   # the file the caller created
             elif kind == b"W":
                 for topic, t, encoded in pickle.loads(data):
                     logger.write_encoded(topic, t, encoded)

@@ -32,6 +32,7 @@ from .reader import RunLog, read_log
 from .render_view import default_blueprint, summary_markdown
 
 APPLICATION_ID = "kexp"
+STALL_S = 30   # seconds without the recording's file growing while its flush waits: a failed write
 ACTIVE_CODES = {"none": 0.0, "21e": 1.0, "21f": 2.0}   # constraint activity as a number (other values: NaN)
 
 # colours (RGB)
@@ -294,6 +295,45 @@ def _blueprint_stream(rr, blueprint):
 
 
 # -- public API ------------------------------------------------------------------------------------------------
+def _flush(rec, rrd_path: Path, tmp: Path) -> None:
+    """Flush the recording to its file ``tmp`` (to become ``rrd_path``); a failed write raises RenderError.  Rerun
+    (0.41) does not report a failed write (a full disk, a file-size limit): its flush then waits forever.  So it is
+    waited for in steps of one second, and given up when the file cannot grow (:func:`_cannot_grow`) or has not
+    grown for :data:`STALL_S` seconds."""
+    last, still = -1, 0
+    while True:
+        try:
+            rec.flush(timeout_sec=1.0)
+            return
+        except RuntimeError as exc:
+            if "timed out" not in str(exc):   # "File-writer thread shut down prematurely"
+                raise RenderError(f"cannot write {rrd_path}: {exc}") from None
+        size = tmp.stat().st_size if tmp.exists() else 0
+        reason = _cannot_grow(tmp, size)
+        still = still + 1 if size == last else 0
+        if reason is None and still >= STALL_S:
+            reason = f"the file has not grown for {STALL_S} s (at {size} bytes)"
+        if reason:
+            raise RenderError(f"cannot write {rrd_path}: {reason}")
+        last = size
+
+
+def _cannot_grow(path: Path, size: int) -> str | None:
+    """Why the file at ``path``, of ``size`` bytes, cannot grow (this process's file-size limit reached, no free
+    block left), or None."""
+    import resource
+    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if soft != resource.RLIM_INFINITY and size >= soft:
+        return f"File too large (EFBIG): the file-size limit is {soft} bytes"
+    try:
+        st = os.statvfs(path.parent)
+    except OSError:
+        return None
+    if (st.f_bfree if os.geteuid() == 0 else st.f_bavail) == 0:
+        return "No space left on device (ENOSPC)"
+    return None
+
+
 def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
     """Render the run log at ``mcap_path`` into a Rerun recording at ``rrd_path`` (default: the same path with
     suffix ``.rrd``) and return that path.  A truncated or unfinished log is rendered as far as it goes, with a
@@ -348,7 +388,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
                 static=True)
         rec.log("config", rr.TextDocument(json.dumps(conf.get("config") or {}, indent=2, sort_keys=True),
                                           media_type="text/plain"), static=True)
-        rec.flush()
+        _flush(rec, rrd_path, tmp)
         done = True
     finally:
         rec.disconnect()   # closes the file sink: the footer is written and the .rrd is complete

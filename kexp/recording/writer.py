@@ -159,22 +159,24 @@ class LogHelpers:
 
 
 class RunLogger(LogHelpers):
-    """Writes one run's MCAP log at ``path`` (parent folders created, an existing file replaced): every channel of
-    :data:`~kexp.recording.schema.CHANNELS` registered with its JSON schema, messages time-stamped with simulation
-    time, zstd chunks flushed every ``flush_every`` simulated seconds; ``/prediction`` every ``prediction_every``
-    steps (0: never).  Call the typed helpers (``log_config``, ``log_model``, ``log_clf``, ``log_step`` from
-    ``closed_loop``'s ``on_step``, ``log_open_loop``, ``log_summary``, ``log_run_info``) or ``write``, then
-    ``close()`` — or use it as a context manager (see the README's Python API).  Writing to an unknown topic
-    raises KeyError; a file that cannot be opened raises OSError.  ``background=True``: a writer thread encodes and
-    writes (see the module's docstring); a payload given to ``write`` must then not be changed afterwards.
-    ``compress_thread=False``: chunks are compressed and written in the caller's thread (the same bytes)."""
+    """Writes one run's MCAP log at ``path`` (parent folders created; the file is created exclusively: anything
+    at ``path`` already raises FileExistsError and is left as it is; ``exclusive=False`` replaces a file): every
+    channel of :data:`~kexp.recording.schema.CHANNELS` registered with its JSON schema, messages time-stamped with
+    simulation time, zstd chunks flushed every ``flush_every`` simulated seconds; ``/prediction`` every
+    ``prediction_every`` steps (0: never).  Call the typed helpers (``log_config``, ``log_model``, ``log_clf``,
+    ``log_step`` from ``closed_loop``'s ``on_step``, ``log_open_loop``, ``log_summary``, ``log_run_info``) or
+    ``write``, then ``close()`` — or use it as a context manager (see the README's Python API).  Writing to an
+    unknown topic raises KeyError; a file that cannot be created raises OSError.  ``background=True``: a writer
+    thread encodes and writes (see the module's docstring); a payload given to ``write`` must then not be changed
+    afterwards.  ``compress_thread=False``: chunks are compressed and written in the caller's thread (the same
+    bytes)."""
 
     def __init__(self, path: str | Path, *, flush_every: float = 1.0, prediction_every: int = 0,
-                 background: bool = False, compress_thread: bool = True):
+                 background: bool = False, compress_thread: bool = True, exclusive: bool = True):
         check_settings(flush_every, prediction_every)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "wb")
+        self._f = open(self.path, "xb" if exclusive else "wb")
         self._w = McapFile(self._f, chunk_size=1 << 20, thread=compress_thread)
         self._w.start(profile="", library=LIBRARY)
         self._ch = {}
@@ -328,7 +330,10 @@ class RunLogger(LogHelpers):
             pass
         finally:
             self._w.stop()
-            self._f.close()
+            try:
+                self._f.close()      # the file is closed even when its last write fails (a full disk)
+            except OSError:
+                pass
 
     def _stop_thread(self) -> None:
         if self._queue is not None and self._thread.is_alive():
