@@ -13,6 +13,7 @@ from kexp.errors import DataError
 from kexp.identify import IdentifyConfig, identify
 from kexp.recording import read_log
 from kexp.systems import make_system
+from cli import console_script
 
 ROOT = Path(__file__).resolve().parents[1]
 VDP = make_system("vanderpol", {})
@@ -278,7 +279,7 @@ def test_every_file_error_is_one_line_with_exit_code_2(tmp_path):
     """Through the `kexp` CLI (the schema accepts data.source.*), each in its own process."""
     for name, path, extra, fragment in _bad_files(tmp_path):
         proc = subprocess.run(
-            ["kexp", "data.source.kind=files", f"data.source.path={path}", "dictionary.degree=3",
+            [console_script("kexp"), "data.source.kind=files", f"data.source.path={path}", "dictionary.degree=3",
              "identification.holdout=0", "sim.allow_outside_data=true", "logging.rrd=false", "logging.progress=false", "cache.enabled=false",
              f"hydra.run.dir={tmp_path / 'out'}", *extra], capture_output=True, text=True, timeout=120)
         lines = proc.stderr.strip().splitlines()

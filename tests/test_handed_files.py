@@ -20,6 +20,7 @@ from kexp.recording import read_log
 from kexp.recording.mcap_file import MAGIC, McapFile
 from kexp.recording.mcap_read import CHUNK_LIMIT, RATIO_LIMIT, budget
 from kexp.recording.reader import LogError
+from cli import console_script
 
 ROOT = Path(__file__).resolve().parents[1]
 HEADER = "t,x1,x2,u1"
@@ -348,7 +349,7 @@ def test_a_corrupt_chunk_past_its_crc_is_a_cut_not_a_refusal(tmp_path):
 # ---- through the commands: one line, exit code 2 -----------------------------------------------------------
 
 def test_kexp_diff_on_a_bomb_exits_2_with_one_line(bombs):
-    proc = subprocess.run(["kexp-diff", str(bombs["declared"]), str(ROOT / "recordings" / "paper_vanderpol.mcap")],
+    proc = subprocess.run([console_script("kexp-diff"), str(bombs["declared"]), str(ROOT / "recordings" / "paper_vanderpol.mcap")],
                           capture_output=True, text=True, timeout=60)
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
@@ -367,7 +368,7 @@ def test_kexp_refuses_handed_files_with_one_line_and_exit_code_2(tmp_path, bombs
              (bombs["declared"], "declared.mcap: the chunk at byte 25 declares 2048 MiB uncompressed")]
     for path, fragment in cases:
         proc = subprocess.run(
-            ["kexp", "data.source.kind=files", f"data.source.path={path}", "dictionary.degree=3",
+            [console_script("kexp"), "data.source.kind=files", f"data.source.path={path}", "dictionary.degree=3",
              "identification.holdout=0", "logging.rrd=false", "logging.progress=false", "cache.enabled=false",
              f"hydra.run.dir={tmp_path / 'out'}"], capture_output=True, text=True, timeout=120)
         err = proc.stderr.strip().splitlines()

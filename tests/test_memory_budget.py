@@ -11,11 +11,12 @@ import pytest
 from kexp.control import LmpcConfig
 from kexp.control.memory import MEMORY_BUDGET_GB, check_memory, memory_estimate
 from kexp.errors import ConfigError
+from cli import console_script
 
 
 def test_cli_refuses_a_horizon_over_the_memory_budget_before_identification(tmp_path):
     # used to identify the model, then die in rollout_sensitivity with MemoryError: Allocation failed
-    proc = subprocess.run(["kexp", "controller.lmpc.horizon=10000000", "logging.progress=false",
+    proc = subprocess.run([console_script("kexp"), "controller.lmpc.horizon=10000000", "logging.progress=false",
                            f"hydra.run.dir={tmp_path}"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     lines = proc.stderr.strip().splitlines()

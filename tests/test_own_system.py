@@ -13,6 +13,8 @@ from kexp.app.conf import CONF_DIR
 from kexp.app.experiment import config_dict
 from kexp.recording import read_log
 
+from cli import console_script
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 # small enough to take seconds (as in tests/test_recording.py)
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
@@ -39,7 +41,8 @@ def _env(extra: Path) -> dict:
 
 
 def _kexp(args, cwd: Path, timeout=300):
-    return subprocess.run(["kexp", *args], cwd=cwd, env=_env(cwd), capture_output=True, text=True, timeout=timeout)
+    return subprocess.run([console_script("kexp"), *args], cwd=cwd, env=_env(cwd), capture_output=True, text=True,
+                          timeout=timeout)
 
 
 def _logged_system(run_dir: Path) -> dict:

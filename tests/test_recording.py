@@ -14,6 +14,7 @@ from kexp.recording import copy_log, diff_logs, read_log
 from kexp.recording.diff import main as diff_main
 from kexp.recording.schema import _DUMPS, encode, plain
 from kexp.recording.writer import RunLogger
+from cli import console_script
 
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=1.0", "clf.grid=11", "logging.rrd=false", "logging.progress=false",
@@ -131,7 +132,7 @@ def test_cli_exit_codes(two_runs, tmp_path, capsys):
     bogus = tmp_path / "bogus.mcap"
     bogus.write_text("not mcap")
     assert diff_main([str(two_runs[0]), str(bogus)]) == 2
-    proc = subprocess.run(["kexp-diff", str(two_runs[0]), str(tmp_path / "no.mcap")],
+    proc = subprocess.run([console_script("kexp-diff"), str(two_runs[0]), str(tmp_path / "no.mcap")],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.strip().startswith("kexp-diff: error:")
 

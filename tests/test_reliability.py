@@ -110,7 +110,7 @@ def test_composition_errors_are_one_line_exit_2(argv, fragment, capsys):
 
 
 def test_cli_exit_code_and_no_traceback(tmp_path):
-    proc = subprocess.run(["kexp", "controller.u_min=9.0", f"hydra.run.dir={tmp_path}"], capture_output=True,
+    proc = subprocess.run([console_script("kexp"), "controller.u_min=9.0", f"hydra.run.dir={tmp_path}"], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith("kexp: error: controller.u_min=9.0")
@@ -191,7 +191,7 @@ def _run_with_threads(tmp_path: Path, threads: int) -> Path:
     env = dict(os.environ, OPENBLAS_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads),
                MKL_NUM_THREADS=str(threads))
     out = tmp_path / f"t{threads}"
-    subprocess.run(["kexp", *SMALL, "cache.enabled=false", f"hydra.run.dir={out}"], env=env, check=True,
+    subprocess.run([console_script("kexp"), *SMALL, "cache.enabled=false", f"hydra.run.dir={out}"], env=env, check=True,
                    capture_output=True, timeout=300)
     return out / "run.mcap"
 

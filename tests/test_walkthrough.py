@@ -6,6 +6,7 @@ import re
 import subprocess
 import sys
 from pathlib import Path
+from cli import console_script
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -27,7 +28,7 @@ def test_the_csv_walkthrough_runs_as_written(tmp_path):
     command = next(line for line in sec.splitlines() if line.startswith("kexp +experiment=vanderpol data.source"))
     args = command.split()[1:] + ["logging.progress=false", f"cache.dir={tmp_path / 'cache'}",
                                   f"hydra.run.dir={tmp_path / 'run'}"]
-    proc = subprocess.run(["kexp", *args], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([console_script("kexp"), *args], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "G not used" in proc.stdout and "result: SUCCESS" in proc.stdout
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())

@@ -14,6 +14,7 @@ from threadpoolctl import threadpool_limits
 
 from ..clf.levelset import level_set_boundary
 from ..data import collect
+from ..data.runs import check_dictionary_range
 from ..data.noise import add_measurement_noise, data_rms
 from ..data.streaming import bounds as data_bounds
 from ..errors import ConfigError, KexpError
@@ -187,6 +188,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
         rms = data_rms(dataset, system.equilibrium)
         dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium).with_smoothing(data_smooth)
         dictionary = build_dictionary(cfg["dictionary"], system.n, dataset, system.equilibrium)
+        check_dictionary_range(dataset.stats(), dictionary.degree, dictionary.scale, dictionary.center)
         model = identify(system, dataset, dictionary, ident_cfg)
         # kept with the cached model: a relative sim.noise is a fraction of these (clean data, about x_eq)
         model.report["data_rms"] = rms.tolist()

@@ -42,8 +42,12 @@ def precheck(argv: list[str]) -> None:
     args = _hydra_args(argv)
     if args is None:
         return
-    if (args.help or args.hydra_help or args.cfg or args.info or args.shell_completion or args.experimental_rerun
-            or args.config_path):
+    if args.experimental_rerun:   # Hydra unpickles the file: a config from a stranger would run its code
+        print(f"kexp: error: --experimental-rerun {args.experimental_rerun}: Hydra loads that file with pickle, which "
+              "runs any code it holds; kexp does not accept it: re-run with the overrides in the run's "
+              ".hydra/overrides.yaml instead", file=sys.stderr)
+        sys.exit(2)
+    if (args.help or args.hydra_help or args.cfg or args.info or args.shell_completion or args.config_path):
         return  # Hydra shows something, or finds the config relative to its own main: leave it to Hydra
     argv, config_name, multirun = list(args.overrides), args.config_name or "config", args.multirun
     if args.config_dir:
