@@ -277,11 +277,12 @@ def _bad_files(tmp: Path):
 
 def test_every_file_error_is_one_line_with_exit_code_2(tmp_path):
     """Through the `kexp` CLI (the schema accepts data.source.*), each in its own process."""
-    for name, path, extra, fragment in _bad_files(tmp_path):
-        proc = subprocess.run(
+    for i, (name, path, extra, fragment) in enumerate(_bad_files(tmp_path)):
+        proc = subprocess.run(   # each case its own run folder: a refused run's summary.json holds that folder
             [console_script("kexp"), "data.source.kind=files", f"data.source.path={path}", "dictionary.degree=3",
-             "identification.holdout=0", "sim.allow_outside_data=true", "logging.rrd=false", "logging.progress=false", "cache.enabled=false",
-             f"hydra.run.dir={tmp_path / 'out'}", *extra], capture_output=True, text=True, timeout=120)
+             "identification.holdout=0", "sim.allow_outside_data=true", "logging.rrd=false", "logging.progress=false",
+             "cache.enabled=false", f"hydra.run.dir={tmp_path / f'out{i}'}", *extra],
+            capture_output=True, text=True, timeout=120)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2, (name, proc.stderr[-2000:])
         assert len(lines) == 1 and "Traceback" not in proc.stderr, (name, proc.stderr[-2000:])

@@ -150,6 +150,7 @@ def test_theorem1_takes_the_run_folder_or_its_run_mcap(run_dir, tmp_path, capsys
     _refused(capsys, f"model file {lone / 'model.npz'} does not exist", "theorem1", lone / "run.mcap",
              "-o", tmp_path / "t.png")
     (lone / "model.npz").write_bytes((run_dir / "model.npz").read_bytes())
+    (lone / "run.mcap").unlink()   # a log is created exclusively
     _log(lone / "run.mcap", 1)
     _refused(capsys, "run.mcap: 1 step in the log, 2 needed", "theorem1", lone, "-o", tmp_path / "t.png")
     _refused(capsys, "not a run folder nor an .mcap log", "theorem1", run_dir / "model.npz", "-o", tmp_path / "t.png")

@@ -366,11 +366,11 @@ def test_kexp_refuses_handed_files_with_one_line_and_exit_code_2(tmp_path, bombs
     cases = [(tmp_path / "typo", "typo/run.csv: line 43, column x2: '1.31o' is not a number"),
              (tmp_path / "latin1", "latin1/run.csv: line 1, byte offset 8: byte 0xb0 is not UTF-8"),
              (bombs["declared"], "declared.mcap: the chunk at byte 25 declares 2048 MiB uncompressed")]
-    for path, fragment in cases:
+    for i, (path, fragment) in enumerate(cases):   # each case its own run folder
         proc = subprocess.run(
             [console_script("kexp"), "data.source.kind=files", f"data.source.path={path}", "dictionary.degree=3",
              "identification.holdout=0", "logging.rrd=false", "logging.progress=false", "cache.enabled=false",
-             f"hydra.run.dir={tmp_path / 'out'}"], capture_output=True, text=True, timeout=120)
+             f"hydra.run.dir={tmp_path / f'out{i}'}"], capture_output=True, text=True, timeout=120)
         err = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(err) == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
         assert err[0].startswith("kexp: error: ") and fragment in err[0], err[0]

@@ -46,6 +46,7 @@ def test_missing_golden_is_written_then_the_test_passes(project):
 def test_a_changed_run_fails_with_its_first_divergence(project):
     project.runpytest()                                     # writes the golden
     run = project.path / "runs" / "run1" / "run.mcap"
+    run.unlink()   # a log is created exclusively: the changed run replaces the first
     copy_log(RUN, run, lambda t, p: p["u"].__setitem__(0, p["u"][0] - 0.01) if t == "/step" and p["k"] == 57 else None)
     res = project.runpytest()
     res.assert_outcomes(failed=1)
@@ -59,6 +60,7 @@ def test_a_changed_run_fails_with_its_first_divergence(project):
 def test_regen_rewrites_the_golden_and_fails_once(project):
     project.runpytest()
     run = project.path / "runs" / "run1" / "run.mcap"
+    run.unlink()   # a log is created exclusively: the changed run replaces the first
     copy_log(RUN, run, lambda t, p: p.update(V=p["V"] * 2) if t == "/step" and p["k"] == 3 else None)
     project.runpytest().assert_outcomes(failed=1)
     regen = project.runpytest("--kexp-regen")
@@ -71,6 +73,7 @@ def test_regen_rewrites_the_golden_and_fails_once(project):
 def test_rounding_passes_portable_and_fails_exact(project):
     project.runpytest()
     run = project.path / "runs" / "run1" / "run.mcap"
+    run.unlink()   # a log is created exclusively: the changed run replaces the first
     copy_log(RUN, run, lambda t, p: p.update(V=p["V"] * (1 + 1e-13)) if t == "/step" else None)
     project.runpytest().assert_outcomes(passed=1)
     project.makepyfile(test_user=USER_TEST.replace('"pendulum_run")', '"pendulum_run", policy="exact")'))
