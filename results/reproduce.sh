@@ -4,7 +4,7 @@
 # the script that made it: results/robustness.sh for results/*.csv and results/robustness/, results/regions.sh
 # for results/regions/ and its map/), condensed into sweeps/reproduce/<the CSV's path>, and compared run by run
 # with the committed CSV (kexp-results compare: discrete columns exactly, cost and max |u| to --rtol, settling
-# time to one step; solve times not compared).
+# time to one step; solve times not compared).  The re-runs use a fresh model cache (a temporary $KEXP_CACHE_DIR).
 #
 #   results/reproduce.sh [--sample N] [--rtol R] CSV [CSV ...]   # e.g. results/*.csv results/robustness/*.csv
 #
@@ -40,6 +40,12 @@ for csv in "$@"; do   # every argument checked before any sweep
     script_of "$csv" > /dev/null || { echo "$csv: not under results/; give a committed CSV" >&2; exit 2; }
     bash "$(script_of "$csv")" --overrides "$(basename "$csv" .csv)" > /dev/null || exit 2
 done
+
+# the re-runs identify with today's code into a fresh model cache of their own (removed at exit): no entry of
+# an earlier run, of other code or copied in by hand can stand in for what today's code computes
+KEXP_CACHE_DIR=$(mktemp -d "${TMPDIR:-/tmp}/kexp-reproduce-cache.XXXXXX")
+export KEXP_CACHE_DIR
+trap 'rm -rf "$KEXP_CACHE_DIR"' EXIT
 
 FAILED=()
 for csv in "$@"; do

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from kexp.data import Circle, DataConfig, collect
-from kexp.data.noise import NoiseConfig, add_measurement_noise, data_rms
+from kexp.data.noise import (DATA_NOISE, DISTURBANCE, MEASUREMENT_NOISE, NoiseConfig, add_measurement_noise,
+                             data_rms, noise_rng)
 from kexp.errors import ConfigError
 from kexp.systems import make_system
 
@@ -123,8 +124,8 @@ def test_closed_loop_measurement_noise_has_the_requested_sigma(runs):
     x = np.array([s["x"] for s in steps])
     v = np.array([s["x_meas"] for s in steps]) - x
     assert len(steps) == 200
-    # exactly the seeded draws: default_rng(5), n numbers per step
-    np.testing.assert_allclose(v, sigma * np.random.default_rng(5).standard_normal((200, 2)), rtol=0, atol=1e-12)
+    # exactly the seeded draws: the measurement noise's stream of seed 5, n numbers per step
+    np.testing.assert_allclose(v, sigma * noise_rng(5, MEASUREMENT_NOISE).standard_normal((200, 2)), rtol=0, atol=1e-12)
     np.testing.assert_allclose(v.std(axis=0), sigma, rtol=0.2)     # 200 samples: sampling error ≈ 5 %
     # the controller saw x_meas: z (and V) in the log are of the measured state
     model = KoopmanBilinearModel.load(d / "model.npz")
@@ -137,7 +138,7 @@ def test_disturbance_is_added_to_the_input_and_the_true_x_is_the_plant_under_u_p
     d, summary = runs["noisy"]
     steps = _steps(d)
     w = np.array([s["w"] for s in steps])
-    np.testing.assert_allclose(w, 0.3 * np.random.default_rng(7).standard_normal((200, 1)), atol=1e-12)
+    np.testing.assert_allclose(w, 0.3 * noise_rng(7, DISTURBANCE).standard_normal((200, 1)), atol=1e-12)
     assert summary["noise"]["disturbance_std"] == [0.3]
     system = make_system("vanderpol")
     opts = IntegratorOptions(batch=1)
@@ -274,8 +275,8 @@ def test_closed_loop_gives_the_controller_only_the_measured_state():
     seen, x = np.array(spy.seen), res.x[:-1]
     np.testing.assert_array_equal(seen, [r.x_meas for r in res.records])
     np.testing.assert_array_equal(x, [r.x for r in res.records])
-    np.testing.assert_allclose(seen - x, np.array([0.05, 0.0]) * np.random.default_rng(2).standard_normal((50, 2)),
-                               atol=1e-15)
+    np.testing.assert_allclose(seen - x, np.array([0.05, 0.0]) * noise_rng(2, MEASUREMENT_NOISE).standard_normal(
+        (50, 2)), atol=1e-15)
     assert np.array_equal(seen[:, 1], x[:, 1])                   # σ = 0 for x2: measured exactly
     with pytest.raises(ConfigError, match=r"noise\.relative=true needs the data's RMS per state: pass it"):
         closed_loop(make_system("vanderpol"), spy, [0.7, -0.5], SimConfig(T=0.1, noise=NoiseConfig(std=0.01)))

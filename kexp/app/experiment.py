@@ -161,7 +161,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
         prestart_writer()   # the writer process's imports run on the other core during data, identification, CLF
     spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
-    cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)))
+    cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)),
+                  warn=lambda msg: echo(f"warning: {msg}"))
     k_max = dictionary_size(cfg["dictionary"], system.n)
     if file_data is None:
         check_data_budget(sampler, data_cfg, ident_cfg, k_max)
@@ -198,10 +199,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
         return model
 
     # recorded data: the files' content (not only their path) determines the model
-    mkey = model_key(cfg_dict if file_data is None else {
-        **cfg_dict, "data": {**cfg_dict["data"], "files_digest": file_data.report.digest}}, FORMAT_VERSION)
-    model = cache.get_or_create(f"model-{mkey}.npz", identify_now, lambda m, p: m.save(p),
-                                KoopmanBilinearModel.load)
+    mkey = model_key(cfg_dict, FORMAT_VERSION, None if file_data is None else file_data.report.digest)
+    model = cache.get_or_create(mkey, identify_now, lambda m, p: m.save(p), KoopmanBilinearModel.load)
     model_path = _save_model(model, out_dir / "model.npz")
     phase("model_s")
     echo(model.summary())
@@ -210,7 +209,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
     for line in _perturbation_lines(perturbation):
         echo(line)
     clf = cache.get_or_create(
-        f"clf-{clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max)}.npz",
+        clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max),
         lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
                                law_params=spec.law_params),
         save_clf, lambda p: load_clf(p, model, clf_cfg))

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from .checks import is_real, short
+from .noise import DATA_NOISE, noise_rng
 from .runs import Run, SampleStats, pair_chunks, split_indices
 
 PAIR_RULES = ("next", "euler")
@@ -171,9 +172,9 @@ class Dataset:
                            absmax=np.abs(xs).max(axis=0), sumsq=np.sum((xs - c) ** 2, axis=0), center=c)
 
     def with_noise(self, sigma: np.ndarray, seed: int) -> "Dataset":
-        """x + σ·N(0, 1) drawn from ``default_rng(seed)`` over x's shape (n_traj, T+1, n) in C order; the
-        report's ``noise_std`` is σ (n,)."""
-        noisy = self.x + np.random.default_rng(seed).standard_normal(self.x.shape) * sigma
+        """x + σ·N(0, 1) drawn from the data noise's stream of ``seed`` (kexp.data.noise.noise_rng) over x's shape
+        (n_traj, T+1, n) in C order; the report's ``noise_std`` is σ (n,)."""
+        noisy = self.x + noise_rng(seed, DATA_NOISE).standard_normal(self.x.shape) * sigma
         report = self.report or DataReport(
             n_traj=self.n_traj, n_samples=int(self.valid.size), n_pairs=self.n_pairs,
             n_masked_samples=int((~self.valid).sum()), n_dropped_traj=0, filter="none", region="all")

@@ -4,7 +4,11 @@ sees in the closed loop.
 A noise level ``std`` is one number for every state or one per state.  ``relative: true`` (the default) means
 a fraction of the data's RMS per state, RMS_i = sqrt(mean over the kept samples of (x_i − x_eq,i)²), as in the
 robustness table σ ∈ {0, 1 %, 3 %}; ``relative: false`` means absolute units of the state.  Noise is Gaussian,
-zero mean, independent across samples and states, drawn from ``numpy.random.default_rng(seed)``.
+zero mean, independent across samples and states.
+
+Each purpose draws from its own stream (:func:`noise_rng`): the data's noise, the closed loop's measurement noise
+and its input disturbance are independent of each other even with equal seeds (all three default to seed 0), and
+the same seed gives the same draws run to run.
 """
 from __future__ import annotations
 
@@ -17,6 +21,21 @@ import numpy as np
 from ..errors import ConfigError, require_seed
 from .checks import short, state_vector
 from .runs import PairSource
+
+
+# the purposes that draw noise, each its own stream: SeedSequence(seed, spawn_key=(id,)) (numpy's way to derive
+# independent streams from one seed; no id is 0, so no stream is default_rng(seed) itself)
+DATA_NOISE, MEASUREMENT_NOISE, DISTURBANCE = "data.noise", "sim.noise", "sim.disturbance"
+_STREAM_IDS = {DATA_NOISE: 1, MEASUREMENT_NOISE: 2, DISTURBANCE: 3}
+
+
+def noise_rng(seed: int, purpose: str) -> np.random.Generator:
+    """The random generator of ``purpose`` (:data:`DATA_NOISE`, :data:`MEASUREMENT_NOISE` or :data:`DISTURBANCE`)
+    for ``seed`` (an int >= 0): ``default_rng(SeedSequence(seed, spawn_key=(id,)))`` with one id per purpose, so
+    that streams of different purposes are independent whatever their seeds, and one purpose's stream is the same
+    for the same seed in every run."""
+    require_seed(seed, f"{purpose}.seed")
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_STREAM_IDS[purpose],)))
 
 
 def _check_std(std: Any, where: str) -> None:
@@ -46,7 +65,8 @@ def _std_vector(std: Any, n: int, where: str, per: str) -> np.ndarray:
 @dataclass(frozen=True)
 class NoiseConfig:
     """Measurement noise (frozen): ``std`` a number >= 0 or one per state (a list); ``relative`` true: a fraction
-    of the data's RMS per state, false: absolute state units; ``seed`` of ``default_rng``.  ``std`` = 0: none.
+    of the data's RMS per state, false: absolute state units; ``seed`` of its stream (:func:`noise_rng`).
+    ``std`` = 0: none.
     Raises :class:`~kexp.errors.ConfigError` for a negative or non-finite std or a non-integer seed."""
 
     std: Any = 0.0

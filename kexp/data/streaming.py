@@ -23,6 +23,7 @@ from .checks import require_path, short, state_vector
 from .collect import RegionFilter
 from .dataset import PAIR_RULES, DataReport, Dataset
 from .files import FORMATS, DataBounds, _check_time, list_runs, read_run
+from .noise import DATA_NOISE, noise_rng
 from .runs import Run, SampleStats, count_pairs, pair_chunks, sample_stats, split_indices
 from .smoothing import segments, smooth_run
 
@@ -130,9 +131,10 @@ class RecordedRuns:
         return sample_stats(self.runs(), self.n, c)
 
     def with_noise(self, sigma: np.ndarray, seed: int) -> "RecordedRuns":
-        """Noise σ·N(0, 1) from ``default_rng(seed)`` drawn run after run over (t_len, n) each, as the in-memory
-        Dataset draws over its (n_traj, T+1, n) array; only each run's generator state is kept."""
-        rng, states = np.random.default_rng(seed), []
+        """Noise σ·N(0, 1) from the data noise's stream of ``seed`` (kexp.data.noise.noise_rng) drawn run after run
+        over (t_len, n) each, as the in-memory Dataset draws over its (n_traj, T+1, n) array; only each run's
+        generator state is kept."""
+        rng, states = noise_rng(seed, DATA_NOISE), []
         for _ in range(self.n_traj):
             states.append(rng.bit_generator.state)
             rng.standard_normal((self.t_len, self.n))

@@ -5,7 +5,8 @@ given), returns u_k, and the true system (the plant: it may differ from the syst
 ``sim.plant_params``) is integrated accurately (adaptive DOP853, :class:`~kexp.simulate.stepper.HeldInputStepper`) over [t_k, t_k + Δ) with u_k + w_k held.
 v_k ~ N(0, diag σ_v²) is the measurement noise (``SimConfig.noise``, 0 by default), w_k ~ N(0, diag σ_w²) the
 process disturbance added to the input channel, piecewise constant over each step (``SimConfig.disturbance``,
-0 by default); each has its own ``default_rng(seed)``.  Arrays: t (T+1,), x (T+1, n), u (T, m), z (T+1, k).
+0 by default); each draws from its own stream of its seed (kexp.data.noise.noise_rng: independent of each other
+and of the data's noise, equal seeds included).  Arrays: t (T+1,), x (T+1, n), u (T, m), z (T+1, k).
 """
 from __future__ import annotations
 
@@ -16,14 +17,14 @@ from typing import Any
 import numpy as np
 
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
-from ..data.noise import NoiseConfig, _check_std, _std_active, _std_vector
+from ..data.noise import DISTURBANCE, MEASUREMENT_NOISE, NoiseConfig, _check_std, _std_active, _std_vector, noise_rng
 from ..errors import ConfigError, require_number, require_seed, require_whole_steps
 from .stepper import HeldInputStepper
 
 
 @dataclass(frozen=True)
 class Disturbance:
-    """Additive process disturbance (frozen): w_k ~ N(0, diag std²) drawn from ``default_rng(seed)`` once per
+    """Additive process disturbance (frozen): w_k ~ N(0, diag std²) drawn from its stream of ``seed`` once per
     control step and added to the input the plant receives, u_k + w_k, held over [t_k, t_k + Δ) like u_k (a
     force in the input channel; not limited by the input bounds).  ``std`` in input units: a number >= 0 or one
     per input; 0 (the default): none.  Raises ConfigError for a negative std or a non-integer seed."""
@@ -240,8 +241,8 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     status, message = "completed", ""
     sigma_v = config.noise.sigma(system.n, noise_scale) if config.noise.active else None
     sigma_w = config.disturbance.sigma(system.m) if config.disturbance.active else None
-    rng_v = np.random.default_rng(config.noise.seed)
-    rng_w = np.random.default_rng(config.disturbance.seed)
+    rng_v = noise_rng(config.noise.seed, MEASUREMENT_NOISE)   # streams independent of each other and of the data's
+    rng_w = noise_rng(config.disturbance.seed, DISTURBANCE)
     controller.reset()
     stepper = HeldInputStepper(system, config.integrator)
     last = n_steps

@@ -1,7 +1,13 @@
-"""Systems by name: the shipped ones, or a user's own class named as ``"package.module:ClassName"``."""
+"""Systems by name: the shipped ones, or a user's own class named as ``"package.module:ClassName"`` (a module
+that is the user's own ``.py`` file, or kexp's: any other is refused before it is imported)."""
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import site
+import sys
+import sysconfig
+from pathlib import Path
 from typing import Any, Mapping
 
 from ..errors import SystemDefinitionError
@@ -13,15 +19,71 @@ SYSTEMS: dict[str, type[ControlAffineSystem]] = {
 }
 
 
+def _system_dirs() -> tuple[list[Path], list[Path]]:
+    """(the folders of installed packages, the standard library's folders) of this interpreter."""
+    paths = sysconfig.get_paths()
+    installed = {paths["purelib"], paths["platlib"], *site.getsitepackages()}
+    if site.ENABLE_USER_SITE:
+        installed.add(site.getusersitepackages())
+    base = sysconfig.get_paths(vars={"base": sys.base_prefix, "platbase": sys.base_exec_prefix,
+                                     "installed_base": sys.base_prefix, "installed_platbase": sys.base_exec_prefix})
+    stdlib = {paths["stdlib"], paths["platstdlib"], base["stdlib"], base["platstdlib"]}
+    resolve = lambda dirs: [Path(d).resolve() for d in dirs if d]  # noqa: E731
+    return resolve(installed), resolve(stdlib)
+
+
+def _not_own(spec) -> str | None:
+    """Why the module of ``spec`` (found, not imported) is not a user's own source file: None when it is a
+    regular ``.py`` file (or a folder of them) outside the standard library and the installed packages."""
+    if spec.origin in ("built-in", "frozen"):
+        return "built into Python"
+    places = [spec.origin] if spec.origin else list(spec.submodule_search_locations or [])
+    if not places:
+        return "not a file"
+    installed, stdlib = _system_dirs()
+    for place in places:
+        where = Path(place).resolve()
+        if any(d in where.parents for d in installed) or {"site-packages", "dist-packages"} & set(where.parts):
+            return f"an installed package ({place})"
+        if any(d in where.parents for d in stdlib):
+            return f"part of Python's standard library ({place})"
+        if spec.origin and where.suffix != ".py":
+            return f"not a Python source file ({place})"
+    return None
+
+
 def _import_class(path: str) -> type:
+    """The class ``path`` names (``module:Class`` or ``module.Class``), from kexp or from a module that is the
+    user's own ``.py`` file; any other module (standard library, installed packages, compiled extensions) is
+    refused before it is imported, so that naming it runs none of its code."""
     module_name, _, cls_name = path.partition(":")
     if not cls_name:
         module_name, _, cls_name = path.rpartition(".")
+    not_found = SystemDefinitionError(f"system {path!r}: cannot import module {module_name!r}; check the name and "
+                                      "that it is on PYTHONPATH")
+    if module_name.split(".")[0] != "kexp":
+        parts = module_name.split(".")
+        for i in range(1, len(parts) + 1):   # each parent checked before find_spec of its child imports it
+            name = ".".join(parts[:i])
+            module = sys.modules.get(name)
+            try:
+                spec = module.__spec__ if module is not None and module.__spec__ is not None else (
+                    importlib.util.spec_from_file_location(name, module.__file__) if module is not None
+                    and getattr(module, "__file__", None) else importlib.util.find_spec(name))
+            except (ImportError, ValueError):
+                raise not_found from None
+            if spec is None:
+                raise not_found
+            why = _not_own(spec)
+            if why is not None:
+                raise SystemDefinitionError(
+                    f"system {path!r}: module {name!r} is {why}; a system's module must be your own .py file (in "
+                    "the current folder or on PYTHONPATH) or kexp's, e.g. system.name=my_systems:MySystem")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise SystemDefinitionError(f"system {path!r}: cannot import module {module_name!r} ({exc}); "
-                           "check the name and that it is on PYTHONPATH") from None
+                                    "check the name and that it is on PYTHONPATH") from None
     try:
         return getattr(module, cls_name)
     except AttributeError:
