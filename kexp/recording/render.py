@@ -30,9 +30,8 @@ from ..cli import Parser
 from ..errors import KexpError
 from .reader import RunLog, read_log
 from .render_view import default_blueprint, summary_markdown
+from .rrd_stream import APPLICATION_ID, RenderError, blueprint_stream, flush
 
-APPLICATION_ID = "kexp"
-STALL_S = 30   # seconds without the recording's file growing while its flush waits: a failed write
 ACTIVE_CODES = {"none": 0.0, "21e": 1.0, "21f": 2.0}   # constraint activity as a number (other values: NaN)
 
 # colours (RGB)
@@ -43,10 +42,6 @@ _PALETTE = [_BLUE, _ORANGE, _GREEN, _RED, _PURPLE, _BROWN, _CYAN, _GRAY]
 
 class RenderWarning(UserWarning):
     """The log was rendered, but it is incomplete (truncated, or the run did not finish)."""
-
-
-class RenderError(KexpError, OSError):
-    """The recording cannot be written (Rerun disabled by the environment, output path = the log, ...)."""
 
 
 # -- small helpers ---------------------------------------------------------------------------------------------
@@ -277,63 +272,7 @@ def _phase_bounds(log: RunLog) -> tuple | None:
     return (float(lo[0] - pad[0]), float(hi[0] + pad[0])), (float(lo[1] - pad[1]), float(hi[1] + pad[1]))
 
 
-# -- the streams' lifetime -------------------------------------------------------------------------------------
-# Each Rerun RecordingStream runs two native threads (ChunkBatcher, RecordingStream) until the SDK drops it, and
-# rerun-sdk 0.41 drops a stream only when nothing refers to it *and* its orphans are cleaned up
-# (bindings.flush_and_cleanup_orphaned_recordings; RecordingStream.__del__ only disconnects them).  The default
-# blueprint of ``save(path, default_blueprint=...)`` is a second stream (rerun.blueprint.api.create_in_memory_blueprint)
-# whose memory sink and its storage refer to each other, so it is never dropped: 4 threads and ~2 MB per render,
-# 200 renders in a sweep worker → 800 threads.  :func:`render` builds that blueprint stream itself (as
-# create_in_memory_blueprint does) so that it can disconnect it, which breaks the cycle.
-def _blueprint_stream(rr, blueprint):
-    """The blueprint's own stream and its in-memory storage (what ``save`` takes as ``default_blueprint``)."""
-    stream = rr.RecordingStream._from_native(rr.bindings.new_blueprint(
-        application_id=APPLICATION_ID, make_default=False, make_thread_default=False, default_enabled=True))
-    stream.set_time("blueprint", sequence=0)
-    blueprint.to_blueprint()._log_to_stream(stream)
-    return stream, stream.memory_recording().storage
-
-
 # -- public API ------------------------------------------------------------------------------------------------
-def _flush(rec, rrd_path: Path, tmp: Path) -> None:
-    """Flush the recording to its file ``tmp`` (to become ``rrd_path``); a failed write raises RenderError.  Rerun
-    (0.41) does not report a failed write (a full disk, a file-size limit): its flush then waits forever.  So it is
-    waited for in steps of one second, and given up when the file cannot grow (:func:`_cannot_grow`) or has not
-    grown for :data:`STALL_S` seconds."""
-    last, still = -1, 0
-    while True:
-        try:
-            rec.flush(timeout_sec=1.0)
-            return
-        except RuntimeError as exc:
-            if "timed out" not in str(exc):   # "File-writer thread shut down prematurely"
-                raise RenderError(f"cannot write {rrd_path}: {exc}") from None
-        size = tmp.stat().st_size if tmp.exists() else 0
-        reason = _cannot_grow(tmp, size)
-        still = still + 1 if size == last else 0
-        if reason is None and still >= STALL_S:
-            reason = f"the file has not grown for {STALL_S} s (at {size} bytes)"
-        if reason:
-            raise RenderError(f"cannot write {rrd_path}: {reason}")
-        last = size
-
-
-def _cannot_grow(path: Path, size: int) -> str | None:
-    """Why the file at ``path``, of ``size`` bytes, cannot grow (this process's file-size limit reached, no free
-    block left), or None."""
-    import resource
-    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
-    if soft != resource.RLIM_INFINITY and size >= soft:
-        return f"File too large (EFBIG): the file-size limit is {soft} bytes"
-    try:
-        st = os.statvfs(path.parent)
-    except OSError:
-        return None
-    if (st.f_bfree if os.geteuid() == 0 else st.f_bavail) == 0:
-        return "No space left on device (ENOSPC)"
-    return None
-
-
 def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
     """Render the run log at ``mcap_path`` into a Rerun recording at ``rrd_path`` (default: the same path with
     suffix ``.rrd``) and return that path.  A truncated or unfinished log is rendered as far as it goes, with a
@@ -375,7 +314,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
     done = False
     bp_stream = bp_storage = None
     try:
-        bp_stream, bp_storage = _blueprint_stream(rr, blueprint)
+        bp_stream, bp_storage = blueprint_stream(rr, blueprint)
         # rec.save(tmp, default_blueprint=blueprint), with the blueprint's stream in hand
         rr.bindings.save(path=str(tmp), default_blueprint=bp_storage, recording=rec.to_native())
         conf = log.one("/config") or {}
@@ -388,7 +327,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
                 static=True)
         rec.log("config", rr.TextDocument(json.dumps(conf.get("config") or {}, indent=2, sort_keys=True),
                                           media_type="text/plain"), static=True)
-        _flush(rec, rrd_path, tmp)
+        flush(rec, rrd_path, tmp)
         done = True
     finally:
         rec.disconnect()   # closes the file sink: the footer is written and the .rrd is complete
