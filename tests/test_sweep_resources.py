@@ -27,6 +27,10 @@ render(sys.argv[1], out / "warm.rrd")
 before = (threads(), rss_mb())
 for i in range(5):
     render(sys.argv[1], out / f"{i}.rrd")
+import time
+deadline = time.monotonic() + 30   # a thread being joined may take a moment on a loaded machine; leaked ones stay
+while threads() - before[0] > 1 and time.monotonic() < deadline:
+    time.sleep(0.1)
 reader = RrdReader(out / "4.rrd")
 print(json.dumps({"threads": [before[0], threads()], "rss": [before[1], rss_mb()],
                   "recordings": len(reader.recordings()), "blueprints": len(reader.blueprints())}))
