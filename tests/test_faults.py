@@ -218,3 +218,12 @@ def test_an_unresolved_interpolation_in_a_sweep_job_is_one_line(tmp_path):
     assert str(exc.value) == ("sim.T=${nope.x}: Interpolation key 'nope.x' not found; interpolate a key that "
                               "exists, or give a value")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, sweep", [
+    (["sim.T=1"], False), (["-m", "sim.T=1,2"], True), (["--multirun", "sim.T=1,2"], True),
+    (["--multir", "sim.T=1,2"], True),   # argparse's abbreviation: Hydra runs a sweep, so its workers are watched
+    (["--help"], False),
+])
+def test_precheck_says_whether_the_command_line_runs_a_sweep_as_hydra_reads_it(argv, sweep, capsys):
+    assert precheck(argv) is sweep

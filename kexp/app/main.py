@@ -95,12 +95,10 @@ def main() -> None:
         from .. import __version__
         print(f"kexp {__version__}")
         return
-    precheck(sys.argv[1:])
-    run_folder.install()   # each run claims its folder before anything is written there (kexp.app.run_folder)
+    sweep = precheck(sys.argv[1:])   # run_folder.install() ran when this module was imported
     from .sweeper import install, install_loader, workers_end_with_parent
     install()   # a sweep's batch check composes one job per structure, not every job (kexp/app/sweeper.py)
     install_loader()   # and each worker composes once per structure too
-    sweep = any(a in ("-m", "--multirun") for a in sys.argv[1:])
     with workers_end_with_parent(sweep):   # a sweep's worker processes end when this process is killed
         _hydra_main()
     _sweep_verdict()

@@ -33,15 +33,22 @@ def composition_error_line(exc: BaseException) -> str:
     return (msg[:400] + " …") if len(msg) > 400 else (msg or type(exc).__name__)
 
 
-def precheck(argv: list[str]) -> None:
+def precheck(argv: list[str]) -> bool:
     """For a single run: compose the config first, so an unknown group option, preset or key, a value of the wrong
     type (the schema, kexp/app/schema.py), an interpolation that does not resolve or a bad override is one line and
     exit code 2 (Hydra itself prints several lines, or a traceback, and exits 1).  The command line is read with
     Hydra's own parser, so the overrides are checked with options among them too (``-cn NAME``, ``--config-dir D``,
-    ``-m``); what only shows something (``--help``, ``--cfg``, ``--info``, …) and ``--config-path`` are Hydra's."""
+    ``-m``); what only shows something (``--help``, ``--cfg``, ``--info``, …) and ``--config-path`` are Hydra's.
+    Returns whether the command line runs a sweep (``-m``/``--multirun``, or an abbreviation, as Hydra reads it)."""
     args = _hydra_args(argv)
     if args is None:
-        return
+        return False
+    _check(args)
+    return bool(args.multirun)
+
+
+def _check(args) -> None:
+    """:func:`precheck`'s checks of the command line ``args`` (Hydra's parsed namespace)."""
     if args.experimental_rerun:   # Hydra unpickles the file: a config from a stranger would run its code
         print(f"kexp: error: --experimental-rerun {args.experimental_rerun}: Hydra loads that file with pickle, which "
               "runs any code it holds; kexp does not accept it: re-run with the overrides in the run's "
