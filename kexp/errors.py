@@ -63,3 +63,8 @@ def require_seed(value, key: str) -> None:
     require_number(value, key, integer=True)
     if value < 0:
         raise ConfigError(f"{key}={value}: use an int >= 0 (a random seed)")
+
+
+class PlantError(KexpError, RuntimeError):
+    """A plant (kexp's integrator, a Gymnasium environment, a user's class) cannot be built, or failed while the
+    loop ran (raised, returned the wrong shape, NaN or inf); the message names the plant, the step and what to fix."""

@@ -52,14 +52,14 @@ def _not_own(spec) -> str | None:
     return None
 
 
-def _import_class(path: str) -> type:
+def _import_class(path: str, what: str = "system", example: str = "system.name=my_systems:MySystem") -> type:
     """The class ``path`` names (``module:Class`` or ``module.Class``), from kexp or from a module that is the
     user's own ``.py`` file; any other module (standard library, installed packages, compiled extensions) is
     refused before it is imported, so that naming it runs none of its code."""
     module_name, _, cls_name = path.partition(":")
     if not cls_name:
         module_name, _, cls_name = path.rpartition(".")
-    not_found = SystemDefinitionError(f"system {path!r}: cannot import module {module_name!r}; check the name and "
+    not_found = SystemDefinitionError(f"{what} {path!r}: cannot import module {module_name!r}; check the name and "
                                       "that it is on PYTHONPATH")
     if module_name.split(".")[0] != "kexp":
         parts = module_name.split(".")
@@ -77,17 +77,17 @@ def _import_class(path: str) -> type:
             why = _not_own(spec)
             if why is not None:
                 raise SystemDefinitionError(
-                    f"system {path!r}: module {name!r} is {why}; a system's module must be your own .py file (in "
-                    "the current folder or on PYTHONPATH) or kexp's, e.g. system.name=my_systems:MySystem")
+                    f"{what} {path!r}: module {name!r} is {why}; a {what}'s module must be your own .py file "
+                    f"(in the current folder or on PYTHONPATH) or kexp's, e.g. {example}")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise SystemDefinitionError(f"system {path!r}: cannot import module {module_name!r} ({exc}); "
+        raise SystemDefinitionError(f"{what} {path!r}: cannot import module {module_name!r} ({exc}); "
                                     "check the name and that it is on PYTHONPATH") from None
     try:
         return getattr(module, cls_name)
     except AttributeError:
-        raise SystemDefinitionError(f"system {path!r}: module {module_name!r} has no {cls_name!r}") from None
+        raise SystemDefinitionError(f"{what} {path!r}: module {module_name!r} has no {cls_name!r}") from None
 
 
 def make_system(name: str, params: Mapping[str, Any] | None = None) -> ControlAffineSystem:
