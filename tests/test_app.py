@@ -25,13 +25,24 @@ def _compose(overrides):
         return compose(config_name="config", overrides=overrides)
 
 
+# an option that needs more keys to build: what a user adds on the command line (tests/plant_rigs.py)
+NEEDS = {("plant", "python"): ["plant.target=plant_rigs:VdpRig"],
+         ("plant", "gymnasium"): ["plant.env_id=Pendulum-v1", "data.dt=0.05"],
+         ("system", "plant"): ["plant=python", "plant.target=plant_rigs:VdpRig"]}
+
+
 @pytest.mark.parametrize("group,option", [(g, o) for g, opts in GROUPS.items() for o in opts])
 def test_every_config_option_composes_and_builds(group, option):
     from kexp.app.build import (build_clf, build_data, build_dictionary, build_identification, build_sim,
                                 build_system)
-    from kexp.app.build import build_controller_spec, build_logging
-    cfg = _compose([f"{group}={option}"])
-    system = build_system(cfg.system)
+    from kexp.app.build import build_controller_spec, build_external_plant, build_logging, build_plant_config
+    cfg = _compose([f"{group}={option}", *NEEDS.get((group, option), [])])
+    plant_cfg = build_plant_config(cfg.plant)
+    if plant_cfg.external:
+        plant, system = build_external_plant(plant_cfg, cfg.system, cfg.sim)
+        plant.close()
+    else:
+        system = build_system(cfg.system)
     build_data(cfg.data)
     build_identification(cfg.identification)
     build_dictionary(cfg.dictionary, system.n)
@@ -43,9 +54,11 @@ def test_every_config_option_composes_and_builds(group, option):
 
 def test_the_option_list_is_conf_s():
     """The parametrisation above reads conf/: the groups and options a user sees (README) are all there."""
-    assert GROUPS["system"] == ["cart_pendulum", "duffing", "linear", "pendulum", "slow_manifold", "vanderpol"]
+    assert GROUPS["system"] == ["cart_pendulum", "duffing", "linear", "pendulum", "plant", "slow_manifold",
+                                "vanderpol"]
+    assert GROUPS["plant"] == ["gymnasium", "integrator", "python"]
     assert GROUPS["controller"] == ["lie_gain", "lmpc", "lqr", "model_lqr", "nmpc", "sontag"]
-    assert {"data", "dictionary", "identification", "clf", "sim", "logging", "cache"} <= set(GROUPS)
+    assert {"data", "dictionary", "identification", "clf", "sim", "plant", "logging", "cache"} <= set(GROUPS)
 
 
 def test_default_job_end_to_end_small(tmp_path):

@@ -88,6 +88,9 @@ def system_settings(cfg: Mapping[str, Any]) -> dict:
 
 def build_system(cfg: Mapping[str, Any]):
     settings = system_settings(cfg)
+    if settings["name"] == PLANT_SYSTEM:
+        raise ConfigError("system=plant is the system of an external plant: set plant=gymnasium (plant.env_id=…) "
+                          "or plant=python (plant.target=module:Class)")
     return make_system(settings["name"], settings["params"])
 
 
@@ -99,7 +102,9 @@ def build_data(cfg: Mapping[str, Any]):
     sampler_cfg = dict(cfg.pop("sampler", None) or {})
     source = construct(DataSource, cfg.pop("source", None), "data.source")
     sampler = None
-    if source.kind == "simulate":
+    if source.kind == "plant" and source.path:
+        raise ConfigError(f"data.source.path={source.path!r} applies to data.source.kind=files, not plant")
+    if source.kind in ("simulate", "plant"):
         if "kind" not in sampler_cfg:
             raise ConfigError("data.sampler.kind is missing; valid: circle, box, points")
         kind = sampler_cfg.pop("kind")
@@ -159,6 +164,60 @@ def build_plant(nominal, system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, An
         return nominal, {name: getattr(nominal, name) for name in valid}
     plant = make_system(settings["name"], {**settings["params"], **overrides})
     return plant, {name: getattr(plant, name) for name in valid}
+
+
+def build_plant_config(cfg: Mapping[str, Any] | None):
+    """The validated ``plant`` section (:class:`~kexp.plants.PlantConfig`; absent: kexp's integrator)."""
+    from ..plants import PlantConfig
+    return construct(PlantConfig, cfg, "plant")
+
+
+PLANT_SYSTEM = "plant"   # system.name of a plant without a formula (conf/system/plant.yaml)
+
+
+def build_external_plant(plant_cfg, system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, Any]):
+    """(plant, system) for an external plant (``plant.kind`` gymnasium or python): the checked plant and the
+    system the stages read n, m, x_eq and names from: the configured system's formula where one is named, or the
+    plant's own :class:`~kexp.plants.PlantSystem` with ``system=plant``.  ``sim.plant_params`` does not apply (it
+    changes kexp's integrator) and is refused."""
+    from ..plants import PlantSystem, make_plant
+    if dict(_plain(dict(_plain(sim_cfg)).get("plant_params")) or {}):
+        raise ConfigError(f"sim.plant_params applies to kexp's integrator (plant=integrator), not plant.kind="
+                          f"{plant_cfg.kind}: set the {plant_cfg.kind} plant's own parameters "
+                          + ("(plant.env_kwargs)" if plant_cfg.kind == "gymnasium" else "(plant.params)"))
+    settings = system_settings(system_cfg)
+    system = None if settings["name"] == PLANT_SYSTEM else make_system(settings["name"], settings["params"])
+    plant = make_plant(plant_cfg, system)
+    if system is None:
+        info = plant.info()
+        system = PlantSystem(plant_id=str(info.get("id", plant.name)), n_states=plant.n, n_inputs=plant.m,
+                             x_eq=plant_cfg.equilibrium or (), names=plant_cfg.state_names or ())
+    elif (plant.n, plant.m) != (system.n, system.m):
+        plant.close()
+        raise ConfigError(f"plant {plant.name!r} has n={plant.n}, m={plant.m}, the system {system.name!r} "
+                          f"n={system.n}, m={system.m}: name the system the plant simulates, or system=plant")
+    return plant, system
+
+
+def narrow_bounds(spec, plant, echo=print):
+    """``spec`` with its input bounds narrowed to those the plant accepts (a Gymnasium Box), with one line when
+    they change; the plant's bounds are the input bounds unless the config narrows them."""
+    bounds = plant.input_bounds() if plant is not None else None
+    if bounds is None:
+        return spec
+    lo_p, hi_p = (np.broadcast_to(np.asarray(b, float), (plant.m,)) for b in bounds)
+    lo_c = np.broadcast_to(np.asarray(spec.u_min, float), (plant.m,))
+    hi_c = np.broadcast_to(np.asarray(spec.u_max, float), (plant.m,))
+    lo, hi = np.maximum(lo_c, lo_p), np.minimum(hi_c, hi_p)
+    if np.array_equal(lo, lo_c) and np.array_equal(hi, hi_c):
+        return spec
+    if not np.all(lo < hi):
+        raise ConfigError(f"controller.u_min={spec.u_min}, u_max={spec.u_max} do not overlap the plant's input "
+                          f"bounds [{lo_p.tolist()}, {hi_p.tolist()}]")
+    as_cfg = lambda v: float(v[0]) if v.size == 1 else tuple(float(a) for a in v)  # noqa: E731
+    echo(f"input bounds: the plant accepts [{', '.join(f'{a:g}' for a in lo_p)}] … "
+         f"[{', '.join(f'{a:g}' for a in hi_p)}]; the controller uses u_min={as_cfg(lo)}, u_max={as_cfg(hi)}")
+    return dataclasses.replace(spec, u_min=as_cfg(lo), u_max=as_cfg(hi))
 
 
 def read_data_files(system, data_cfg: DataConfig):

@@ -50,7 +50,7 @@ MODEL_GROUPS = ("system", "data", "dictionary", "identification")
 # the kexp sources (under kexp/) that compute a model and a CLF, and the packages whose versions their numbers
 # depend on; the app's config translation and the run's identification step (build.py: the dictionary's scale
 # from the data; experiment.py: noise, smoothing, the report) are among them, the controllers are not
-MODEL_CODE = ("identify", "data", "dictionary.py", "systems", "app/build.py", "app/experiment.py")
+MODEL_CODE = ("identify", "data", "dictionary.py", "systems", "plants", "app/build.py", "app/experiment.py")
 CLF_CODE = MODEL_CODE + ("clf", "control/laws.py")
 MODEL_PACKAGES = ("numpy", "scipy")
 CLF_PACKAGES = MODEL_PACKAGES + ("cvxpy", "clarabel")

@@ -3,6 +3,7 @@
 hashed and keyed (:func:`config_dict`, :func:`config_hash`)."""
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import time
@@ -27,8 +28,8 @@ from ..clf import load_clf, save_clf, synthesize_clf
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .budget import check_run_size
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
-                    build_data_noise, build_data_smoothing, build_identification, build_logging, build_plant,
-                    build_sim, build_system,
+                    build_data_noise, build_data_smoothing, build_external_plant, build_identification,
+                    build_logging, build_plant, build_plant_config, build_sim, build_system, narrow_bounds,
                     check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
                     system_settings)
 from .cache import Cache, clf_key, model_key
@@ -75,7 +76,18 @@ def config_dict(cfg: Any) -> dict:
         out["logging"] = {k: v for k, v in out["logging"].items() if k != "writer"}
     if "system" in out:
         out["system"] = system_settings(out["system"])
+    if out.get("plant") == _DEFAULT_PLANT:   # kexp's integrator: the config (and its hash) as before plants existed
+        del out["plant"]
     return out
+
+
+def _default_plant() -> dict:
+    from dataclasses import asdict
+    from ..plants import PlantConfig
+    return plain({k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(PlantConfig()).items()})
+
+
+_DEFAULT_PLANT = _default_plant()
 
 
 def _perturbation(system, plant_params: dict, model, sim_cfg) -> dict:
@@ -132,22 +144,31 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
                                  "give another folder")
         with writing(out_dir):
             out_dir.mkdir(parents=True, exist_ok=True)
-        return _run(cfg, out_dir, echo, auto_progress)
+        with contextlib.ExitStack() as stack:   # an external plant is closed however the run ends
+            return _run(cfg, out_dir, echo, auto_progress, stack)
     except OSError as exc:
         if isinstance(exc, KexpError):
             raise
         raise OutputError(fault_message(exc, out_dir)) from exc
 
 
-def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
-    """:func:`run`'s work, in ``out_dir`` (made, holding no run)."""
+def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: contextlib.ExitStack) -> dict:
+    """:func:`run`'s work, in ``out_dir`` (made, holding no run); ``stack`` closes an external plant."""
     t0 = time.perf_counter()
     cfg_dict = config_dict(cfg)
     chash = config_hash(cfg_dict)
     # every config section is validated before the long computations start
-    system = build_system(cfg_dict["system"])
+    plant_cfg = build_plant_config(cfg.get("plant"))
+    ext_plant = None
+    if plant_cfg.external:   # a Gymnasium environment or a user's class: built (and checked) first, it gives n, m
+        ext_plant, system = build_external_plant(plant_cfg, cfg_dict["system"], cfg["sim"])
+        stack.callback(ext_plant.close)
+    else:
+        system = build_system(cfg_dict["system"])
     sampler, data_cfg = build_data(cfg["data"])
     ident_cfg = build_identification(cfg["identification"])
+    spec = build_controller_spec(cfg["controller"])
+    _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec)
     # recorded runs (data.source.kind=files) are read and checked now; their bounding box is the data region
     file_data = read_data_files(system, data_cfg) if data_cfg.source.kind == "files" else None
     clf_cfg = build_clf(cfg["clf"])
@@ -155,11 +176,14 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
     data_smooth = build_data_smoothing(cfg["data"])
     sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt,
                                        sampler if file_data is None else data_bounds(file_data))
-    plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
+    if ext_plant is None:
+        plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
+    else:   # the baselines that need a model of the plant get the system (a formula, or the plant's n, m, x_eq)
+        plant, plant_params = system, {}
+        spec = narrow_bounds(spec, ext_plant, echo)
     log_cfg = build_logging(cfg.get("logging") or {})
     if log_cfg["mcap"] and log_cfg["writer"] == "process":
         prestart_writer()   # the writer process's imports run on the other core during data, identification, CLF
-    spec = build_controller_spec(cfg["controller"])
     cache_cfg = dict(cfg.get("cache") or {})
     cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)),
                   warn=lambda msg: echo(f"warning: {msg}"))
@@ -185,7 +209,10 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
     phase("setup_s")
 
     def identify_now():
-        dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
+        if data_cfg.source.kind == "plant":
+            dataset = _plant_data(system, ext_plant, sampler, data_cfg, auto_progress, log_cfg["progress"])
+        else:
+            dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
         rms = data_rms(dataset, system.equilibrium)
         dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium).with_smoothing(data_smooth)
         dictionary = build_dictionary(cfg["dictionary"], system.n, dataset, system.equilibrium)
@@ -199,13 +226,19 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
         return model
 
     # recorded data: the files' content (not only their path) determines the model
-    mkey = model_key(cfg_dict, FORMAT_VERSION, None if file_data is None else file_data.report.digest)
+    # data from a plant: its kind, id and package versions (an environment's physics) determine the model too
+    digest = file_data.report.digest if file_data is not None else (
+        json.dumps(plain(_plant_identity(ext_plant, plant_cfg)), sort_keys=True) if data_cfg.source.kind == "plant"
+        else None)
+    mkey = model_key(cfg_dict, FORMAT_VERSION, digest)
     model = cache.get_or_create(mkey, identify_now, lambda m, p: m.save(p), KoopmanBilinearModel.load)
     model_path = _save_model(model, out_dir / "model.npz")
     phase("model_s")
     echo(model.summary())
     rms = model.report.get("data_rms")
     perturbation = _perturbation(system, plant_params, model, sim_cfg)
+    if ext_plant is not None:   # the log says what the loop ran on (kexp's integrator: the log as it always was)
+        perturbation["plant"].update(kind=plant_cfg.kind, id=_plant_identity(ext_plant, plant_cfg)["id"])
     for line in _perturbation_lines(perturbation):
         echo(line)
     clf = cache.get_or_create(
@@ -246,7 +279,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
         # BLAS threads on tiny products cost 10-100× (design §2.11); a failed write names the log
         with threadpool_limits(limits=1), writing(out_dir / "run.mcap"):
             result = closed_loop(plant, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
-                                 on_step=on_step, noise_scale=rms)
+                                 on_step=on_step, noise_scale=rms, plant=ext_plant)
     except BaseException:
         if logger is not None:
             logger.abandon()   # the steps so far stay in run.mcap
@@ -260,6 +293,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
     deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
     timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
     versions = _versions()
+    plant_info = _plant_identity(ext_plant, plant_cfg, plant)
+    versions.update(plant_info["versions"])
     lock = lock_info().to_dict()
     files = {"model": model_path.name}
     if logger is not None:
@@ -268,7 +303,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
         t_end = float(result.t[-1])
         logger.log_summary(t_end, result.status, result.message, deterministic, completed=True,
                            perturbation=perturbation)
-        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock)
+        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock,
+                            plant=plant_info)
         with writing(logger.path):
             logger.close()
         files["mcap"] = logger.path.name
@@ -287,7 +323,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
                   "input_projection_residual": model.report["input_projection_residual"],
                   "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
         "noise": perturbation["noise"],
-        "plant": perturbation["plant"],
+        "plant": {**perturbation["plant"], **plant_info},
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
         "versions": versions,
         "lock": lock,
@@ -318,6 +354,53 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None) -> dict:
          f"max {m.solve_time_max * 1e3:.2f} ms")
     echo(f"files: {out_dir.resolve()} ({', '.join(files.values())})")
     return metrics
+
+
+def _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec) -> None:
+    """What a plant without a formula (system=plant) cannot do, refused in one line before any work: simulate
+    data, project G, run the NMPC oracle; and a data.dt that is not an external plant's Δ."""
+    from ..plants import PlantSystem, check_dt
+    if ext_plant is not None:
+        check_dt(ext_plant.dt, data_cfg.dt, "data.dt", ext_plant.name)
+    if not isinstance(system, PlantSystem):
+        return
+    name = system.name
+    if data_cfg.source.kind == "simulate":
+        raise ConfigError(f"plant {name!r} has no formula to simulate data from: set data.source.kind=plant (runs "
+                          "of the plant under data.excitation) or data.source.kind=files")
+    if ident_cfg.inputs != "regression":
+        raise ConfigError(f"plant {name!r}: G is unknown, so B cannot be projected from it: set "
+                          "identification.inputs=regression (and data.excitation for forced data)")
+    if ident_cfg.compare_projection:
+        raise ConfigError(f"identification.compare_projection needs G; plant {name!r} has no formula: set it false")
+    if spec.kind == "nmpc":
+        raise ConfigError(f"controller=nmpc (the true-model oracle) needs a formula (F, G); plant {name!r} has none: "
+                          "the oracle is n/a here (use controller=lqr, model_lqr or lmpc)")
+
+
+def _plant_identity(ext_plant, plant_cfg, system=None) -> dict:
+    """The plant's kind, id and package versions (``/run_info``, ``summary.json``)."""
+    if ext_plant is None:
+        return {"kind": "integrator", "id": getattr(system, "name", None), "versions": {}}
+    info = dict(ext_plant.info())
+    return {"kind": plant_cfg.kind, "id": str(info.get("id", ext_plant.name)), "dt": ext_plant.dt,
+            "versions": dict(info.get("versions") or {}),
+            "info": {k: v for k, v in info.items() if k not in ("kind", "id", "dt", "versions")}}
+
+
+def _plant_data(system, ext_plant, sampler, data_cfg, auto_progress, progress_cfg):
+    """Runs of the plant (kexp's integrator of ``system`` when no external plant is set), with a progress bar."""
+    from ..plants.collect import collect_from_plant
+    from ..plants.integrator import IntegratorPlant
+    plant = ext_plant if ext_plant is not None else IntegratorPlant(system, data_cfg.dt, data_cfg.integrator)
+    n_traj = int(getattr(sampler, "n_traj", 0) or 0)
+    bar = Progress(max(n_traj, 1), f"{system.name} data", enabled=auto_progress if progress_cfg == "auto"
+                   else bool(progress_cfg))
+    try:
+        return collect_from_plant(plant, sampler, data_cfg, system.equilibrium, system.name,
+                                  progress=lambda k: bar.update())
+    finally:
+        bar.close()
 
 
 def _save_model(model, path: Path) -> Path:

@@ -133,6 +133,8 @@ def _build() -> type:
                                        ("smooth", smooth_s, field(default_factory=smooth_s))))
     dictionary_s = derive(Monomials, exclude=("n",), extra=(("kind", str, field(default="monomials")),))
     ident_s, clf_s = derive(IdentifyConfig), derive(ClfConfig)
+    from ..plants import PlantConfig
+    plant_s = derive(PlantConfig)
     sim_s = derive(SimConfig, exclude=("dt",), extra=(
         ("x0", Any, field(default=None)), ("open_loop", bool, field(default=True)),
         ("allow_outside_data", bool, field(default=False)),
@@ -165,6 +167,7 @@ def _build() -> type:
         clf: clf_s = field(default_factory=clf_s)
         controller: ControllerSchema = field(default_factory=ControllerSchema)
         sim: sim_s = field(default_factory=sim_s)
+        plant: plant_s = field(default_factory=plant_s)
         logging: LoggingSchema = field(default_factory=LoggingSchema)
         cache: CacheSchema = field(default_factory=CacheSchema)
         sweep: SweepSchema = field(default_factory=SweepSchema)

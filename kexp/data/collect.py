@@ -122,7 +122,7 @@ class DataConfig:
         require_type(self.integrator, IntegratorOptions, "data.integrator", " (IntegratorOptions(): the defaults)")
         require_type(self.source, DataSource, "data.source", " (DataSource(): simulate)")
         # recorded runs: T does not apply, but T/dt must still be finite
-        require_whole_steps(self.T, self.dt, "data.T", "data.dt", whole=self.source.kind == "simulate")
+        require_whole_steps(self.T, self.dt, "data.T", "data.dt", whole=self.source.kind != "files")
         if self.excitation is not None:
             self.excitation.check(self.dt)
         if self.source.kind == "files" and self.excitation is not None:

@@ -37,15 +37,16 @@ from .dataset import DT_TOLERANCE, Dataset
 from .parse import check_file_size, check_values, npz_headers, read_csv
 
 FORMATS = ("auto", "npz", "csv", "mcap")
-SOURCE_KINDS = ("simulate", "files")
+SOURCE_KINDS = ("simulate", "files", "plant")
 _SUFFIX = {".npz": "npz", ".csv": "csv", ".mcap": "mcap"}
 
 
 @dataclass(frozen=True)
 class DataSource:
-    """Where the data comes from: ``kind='simulate'`` (collect(), the default) or ``kind='files'``: recorded runs
+    """Where the data comes from: ``kind='simulate'`` (collect(), the default), ``kind='files'``: recorded runs
     at ``path`` (a file, or a folder whose ``*.npz`` / ``*.csv`` / ``*.mcap`` files, searched recursively, are
-    read in sorted order), ``format`` auto (by file suffix), npz, csv or mcap."""
+    read in sorted order), ``format`` auto (by file suffix), npz, csv or mcap; or ``kind='plant'``: runs of the
+    configured plant (a Gymnasium environment, a user's class: :func:`kexp.plants.collect.collect_from_plant`)."""
 
     kind: str = "simulate"
     path: str | None = None

@@ -43,7 +43,7 @@ CHANNELS: dict[str, dict] = {
                                 "noise": {"type": "object"}, "plant": {"type": "object"}}},
     "/run_info": {"title": "kexp.RunInfo", "type": "object",
                   "properties": {"versions": {"type": "object"}, "timing": {"type": "object"},
-                                 "lock": {"type": ["object", "null"]}}},
+                                 "lock": {"type": ["object", "null"]}, "plant": {"type": "object"}}},
 }
 
 WALL_CLOCK_CHANNELS = ("/timing", "/run_info")

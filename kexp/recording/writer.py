@@ -148,8 +148,12 @@ class LogHelpers:
             payload.update(perturbation)
         self.write("/summary", t, payload)
 
-    def log_run_info(self, t: float, versions: dict, timing: dict, lock: dict | None = None) -> None:
-        self.write("/run_info", t, {"versions": versions, "timing": timing, "lock": lock})
+    def log_run_info(self, t: float, versions: dict, timing: dict, lock: dict | None = None,
+                     plant: dict | None = None) -> None:
+        payload = {"versions": versions, "timing": timing, "lock": lock}
+        if plant is not None:   # the plant's kind, id and package versions (kexp.plants)
+            payload["plant"] = plant
+        self.write("/run_info", t, payload)
 
     def __enter__(self):
         return self

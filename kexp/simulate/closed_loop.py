@@ -11,6 +11,7 @@ and of the data's noise, equal seeds included).  Arrays: t (T+1,), x (T+1, n), u
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,7 +20,6 @@ import numpy as np
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
 from ..data.noise import DISTURBANCE, MEASUREMENT_NOISE, NoiseConfig, _check_std, _std_active, _std_vector, noise_rng
 from ..errors import ConfigError, require_number, require_seed, require_whole_steps
-from .stepper import HeldInputStepper
 
 
 @dataclass(frozen=True)
@@ -211,8 +211,12 @@ def _check_parts(system, controller, model, lyap) -> None:
 
 
 def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, model=None, lyap=None,
-                open_loop: bool = False, on_step=None, noise_scale=None) -> RunResult:
-    """Simulate ``controller`` on ``system`` (the true plant) from ``x0`` (n,).  ``model`` lifts the measured x to
+                open_loop: bool = False, on_step=None, noise_scale=None, plant=None) -> RunResult:
+    """Simulate ``controller`` on ``plant`` from ``x0`` (n,).  ``plant`` (:mod:`kexp.plants`): None integrates
+    ``system`` (kexp's own plant, :class:`~kexp.plants.IntegratorPlant`); an external plant (a Gymnasium
+    environment, a user's class) must step at ``config.dt`` with ``system``'s n and m, and a
+    :class:`~kexp.errors.PlantError` it raises ends the run (the steps so far were passed to ``on_step``).
+    ``system`` gives x_eq and n, m.  ``model`` lifts the measured x to
     z for controllers that need it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the
     records.  ``on_step(record, control_step)`` is called after each control decision, before the step is
     integrated (logging, progress).  ``noise_scale`` (n,): the per-state scale of a relative ``config.noise``
@@ -244,7 +248,13 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     rng_v = noise_rng(config.noise.seed, MEASUREMENT_NOISE)   # streams independent of each other and of the data's
     rng_w = noise_rng(config.disturbance.seed, DISTURBANCE)
     controller.reset()
-    stepper = HeldInputStepper(system, config.integrator)
+    if plant is None:
+        from ..plants.integrator import IntegratorPlant
+        plant = IntegratorPlant(system, config.dt, config.integrator)
+    else:
+        _check_plant(plant, system, config.dt)
+    plant.reset(x0)
+    plant_seconds = 0.0
     last = n_steps
     for k in range(n_steps):
         x_meas = xs[k] + sigma_v * rng_v.standard_normal(system.n) if sigma_v is not None else xs[k].copy()
@@ -272,7 +282,9 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
             on_step(rec, step)
         try:
             u_plant = u if w is None else u + w
-            nxt = stepper.step(xs[k], u_plant, float(t[k]), float(t[k + 1]))
+            start = time.perf_counter()
+            nxt = plant.step(u_plant)
+            plant_seconds += time.perf_counter() - start
         except IntegrationFailure as exc:
             status, message, last = "diverged", f"integration failed at t={t[k]:.3f}: {exc}", k
             break
@@ -284,10 +296,39 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     t, xs, us = t[:last + 1], xs[:last + 1], us[:last]
     ol = None
     if open_loop:
-        try:
-            ol = integrate(system, x0[None], np.arange(n_steps + 1) * config.dt, None, IntegratorOptions())[0]
-        except IntegrationFailure:
-            ol = None
+        ol = _open_loop(system, plant, x0, n_steps, config.dt)
     return RunResult(status=status, message=message, t=t, x=xs, u=us, records=tuple(records),
                      metrics=_metrics(t, xs, us, records, x_eq, config), open_loop=ol,
-                     integrate_s=stepper.seconds)
+                     integrate_s=getattr(plant, "seconds", plant_seconds))
+
+
+def _check_plant(plant, system, dt: float) -> None:
+    """An external plant must have the system's n and m and step at the closed loop's Δ."""
+    from ..plants.base import check_dt
+    name = getattr(plant, "name", type(plant).__name__)
+    if (plant.n, plant.m) != (system.n, system.m):
+        raise ConfigError(f"plant {name!r} has n={plant.n}, m={plant.m}; the system {system.name!r} n={system.n}, "
+                          f"m={system.m}: use the plant's own system (system=plant) or a plant of this system")
+    check_dt(plant.dt, dt, "the closed loop's Δ (data.dt)", name)
+
+
+def _open_loop(system, plant, x0, n_steps: int, dt: float):
+    """The unforced trajectory from x0 (n_steps+1, n): integrated from the system's F (kexp's own plant), or
+    stepped through an external plant with u = 0 (after the closed loop, from a reset); None if it fails."""
+    from ..errors import KexpError
+    from ..plants.integrator import IntegratorPlant
+    if isinstance(plant, IntegratorPlant):
+        try:
+            return integrate(plant.system, x0[None], np.arange(n_steps + 1) * dt, None, IntegratorOptions())[0]
+        except IntegrationFailure:
+            return None
+    out = np.empty((n_steps + 1, system.n))
+    out[0] = x0
+    try:
+        plant.reset(x0)
+        zero = np.zeros(system.m)
+        for k in range(n_steps):
+            out[k + 1] = plant.step(zero)
+    except (KexpError, IntegrationFailure):
+        return None
+    return out
