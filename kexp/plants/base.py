@@ -66,8 +66,8 @@ class CheckedPlant(Plant):
         self.k = 0
 
     def _fail(self, call: str, reason: str, hint: str) -> PlantError:
-        where = "at reset" if call == "reset" else f"at step {self.k} (t = {self.k * self.dt:.4g} s)"
-        return PlantError(f"plant {self.name!r}: {call} {where} {reason}; {hint}")
+        where = "reset" if call == "reset" else f"step {self.k} (t = {self.k * self.dt:.4g} s)"
+        return PlantError(f"plant {self.name!r}: {where} {reason}; {hint}")
 
     def reset(self, x0) -> None:
         x0 = np.asarray(x0, dtype=float)
