@@ -302,3 +302,23 @@ def test_failures_while_running_are_one_line():
         plant.step(np.zeros(2))
     with pytest.raises(PlantError, match=r"^plant 'Pendulum-v1': reset needs 2 finite numbers, got \[0.0\]$"):
         plant.reset(np.zeros(1))
+
+
+def test_the_plant_config_group_builds_each_kind():
+    """conf/plant/{integrator,gymnasium,python}.yaml are PlantConfigs of their kind; gymnasium.yaml with an env_id
+    builds the plant; its env_id is required (null: one line naming the key)."""
+    from omegaconf import OmegaConf
+
+    from kexp.app.conf import CONF_DIR
+    from kexp.errors import ConfigError
+
+    def load(name):
+        return OmegaConf.to_container(OmegaConf.load(f"{CONF_DIR}/plant/{name}.yaml"))
+
+    assert PlantConfig(**load("integrator")).kind == "integrator"
+    assert PlantConfig(**{**load("python"), "target": "my_rig:Rig"}).kind == "python"
+    with pytest.raises(ConfigError, match=r"^plant.kind=gymnasium needs plant.env_id, e.g. plant.env_id=Pendulum-v1$"):
+        PlantConfig(**load("gymnasium"))
+    plant = make_plant(PlantConfig(**{**load("gymnasium"), "env_id": "InvertedPendulum-v5"}))
+    assert plant.info()["state"] == "qpos_qvel" and plant.dt == 0.04
+    plant.close()
