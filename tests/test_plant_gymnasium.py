@@ -200,11 +200,11 @@ def test_a_users_state_mapping_reads_what_qpos_qvel_reads(maps, obj):
 
 
 class _BoxEnv(gymnasium.Env):
-    """A small real environment for the action-space and Δ checks: action space Box(-1, 1, shape), ``dt`` unless
-    None, a ``state`` attribute when ``with_state``."""
+    """A small real environment for the action-space and Δ checks: action space Box(low, high, shape, dtype),
+    ``dt`` unless None, a ``state`` attribute when ``with_state``."""
 
-    def __init__(self, shape=(2,), dt=0.1, with_state=True):
-        self.action_space = Box(-1.0, 1.0, shape=shape, dtype=np.float64)
+    def __init__(self, shape=(2,), dt=0.1, with_state=True, low=-1.0, high=1.0, dtype=np.float64):
+        self.action_space = Box(low, high, shape=shape, dtype=dtype)
         self.observation_space = Box(-np.inf, np.inf, shape=(2,), dtype=np.float64)
         if dt is not None:
             self.dt = dt
@@ -223,7 +223,9 @@ class _BoxEnv(gymnasium.Env):
 @pytest.fixture
 def box_envs(monkeypatch):
     for env_id, kwargs in [("KexpBox2x2-v0", {"shape": (2, 2)}), ("KexpNoState-v0", {"with_state": False}),
-                           ("KexpBadDt-v0", {"dt": 0.0})]:
+                           ("KexpBadDt-v0", {"dt": 0.0}), ("KexpIntBox-v0", {"dtype": np.int64}),
+                           ("KexpFree-v0", {"low": -np.inf, "high": np.inf}),
+                           ("KexpHalf-v0", {"low": np.array([-np.inf, 0.0]), "high": np.array([5.0, np.inf])})]:
         monkeypatch.setitem(gymnasium.envs.registry, env_id, EnvSpec(id=env_id, entry_point=_BoxEnv, kwargs=kwargs))
 
 
@@ -239,10 +241,12 @@ EXTRA = "plant.kind=gymnasium needs the plants extra: pip install 'kexp[plants]'
     ("Pendulum-v1", {"env_kwargs": {"gravity": 3.0}},
      "plant.env_id='Pendulum-v1', plant.env_kwargs={'gravity': 3.0}: the environment was not built (TypeError: "
      "PendulumEnv.__init__() got an unexpected keyword argument 'gravity'); check the keyword arguments it takes"),
-    ("CartPole-v1", {}, "plant.env_id='CartPole-v1': its action space is Discrete(2); kexp needs a 1-D Box (m "
-                        "continuous inputs)"),
+    ("CartPole-v1", {}, "plant.env_id='CartPole-v1': its action space is Discrete(2); kexp needs a 1-D Box of "
+                        "floats (m continuous inputs)"),
     ("KexpBox2x2-v0", {}, "plant.env_id='KexpBox2x2-v0': its action space is Box(-1.0, 1.0, (2, 2), float64); kexp "
-                          "needs a 1-D Box (m continuous inputs)"),
+                          "needs a 1-D Box of floats (m continuous inputs)"),
+    ("KexpIntBox-v0", {}, "plant.env_id='KexpIntBox-v0': its action space is Box(-1, 1, (2,), int64); kexp needs a "
+                          "1-D Box of floats (m continuous inputs)"),
     ("MountainCarContinuous-v0", {}, "plant.env_id='MountainCarContinuous-v0': the environment has neither dt nor "
      "tau, so its sampling time is unknown; wrap it in your own plant class with a dt (plant.kind=python)"),
     ("KexpBadDt-v0", {}, "plant.env_id='KexpBadDt-v0': its dt=0.0 is not a sampling time (s, > 0)"),
@@ -323,3 +327,56 @@ def test_the_plant_config_group_builds_each_kind():
     plant = make_plant(PlantConfig(**{**load("gymnasium"), "env_id": "InvertedPendulum-v5"}))
     assert plant.info()["state"] == "qpos_qvel" and plant.dt == 0.04
     plant.close()
+
+
+def test_input_bounds_are_the_boxs_with_no_bound_where_it_is_infinite(box_envs):
+    """A half-open Box keeps ±inf on its open sides (kexp's narrowing then keeps the controller's bound there);
+    Box(-inf, inf): None (no bounds of its own); the env's float32 Box(-2, 2) of Pendulum-v1 as floats."""
+    low, high = _plant("KexpHalf-v0").input_bounds()
+    assert low.tolist() == [-np.inf, 0.0] and high.tolist() == [5.0, np.inf]
+    assert _plant("KexpFree-v0").input_bounds() is None
+    low, high = _plant("Pendulum-v1").input_bounds()
+    assert low.dtype == high.dtype == np.float64 and (low.tolist(), high.tolist()) == ([-2.0], [2.0])
+
+
+ENVS = """
+import gymnasium
+import numpy as np
+from gymnasium.spaces import Box
+
+
+class Drift(gymnasium.Env):
+    dt = 0.5
+
+    def __init__(self, a=1.0):
+        self.a = a
+        self.action_space = Box(-1.0, 1.0, shape=(1,), dtype=np.float64)
+        self.observation_space = Box(-np.inf, np.inf, shape=(1,), dtype=np.float64)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.state = np.zeros(1)
+        return self.state.copy(), {}
+
+    def step(self, action):
+        self.state = self.state + self.dt * (self.a * self.state + action)
+        return self.state.copy(), 0.0, False, False, {}
+
+
+gymnasium.register("KexpDrift-v0", entry_point=Drift)
+"""
+
+
+def test_an_env_id_with_a_module_imports_the_module_that_registers_it(tmp_path, monkeypatch):
+    """plant.env_id=kexp_test_envs:KexpDrift-v0 imports the user's module (which registers the env), as
+    gymnasium.make does: x' = x + Δ(a x + u) with the env_kwargs' a = -2."""
+    (tmp_path / "kexp_test_envs.py").write_text(ENVS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    try:
+        plant = _plant("kexp_test_envs:KexpDrift-v0", env_kwargs={"a": -2.0})
+        assert (plant.n, plant.m, plant.dt) == (1, 1, 0.5) and plant.info()["id"] == "kexp_test_envs:KexpDrift-v0"
+        plant.reset(np.array([0.8]))
+        assert plant.step(np.array([0.25])).tolist() == [0.8 + 0.5 * (-2.0 * 0.8 + 0.25)]
+    finally:
+        gymnasium.envs.registry.pop("KexpDrift-v0", None)
+        sys.modules.pop("kexp_test_envs", None)

@@ -14,7 +14,7 @@ resets to and keeps stepping).  The state x is read from and written to the envi
 - ``auto`` (the default): ``qpos_qvel`` for a MuJoCo environment, else ``state`` when the environment has one.
 
 Δ is the environment's: ``unwrapped.dt`` (MuJoCo: ``model.opt.timestep * frame_skip``), else ``unwrapped.tau``.
-The action space must be a 1-D ``Box`` (m = its size); u is handed to ``unwrapped.step`` in the Box's dtype (a
+The action space must be a 1-D ``Box`` of floats (m = its size); u is handed to ``unwrapped.step`` in the Box's dtype (a
 float32 Box rounds u to float32), unclipped: what the environment does beyond its bounds is its own (Pendulum-v1
 clips to ±2, MuJoCo clamps to a limited actuator's ctrlrange).  :meth:`GymnasiumPlant.input_bounds` reports the
 Box; kexp narrows the controller's bounds to it.
@@ -261,9 +261,10 @@ def make_gymnasium_plant(config) -> GymnasiumPlant:
     try:
         env = wrapped.unwrapped
         space = wrapped.action_space
-        if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1 or space.shape[0] < 1:
-            raise PlantError(f"plant.env_id={env_id!r}: its action space is {space}; kexp needs a 1-D Box (m "
-                             "continuous inputs)")
+        if not (isinstance(space, gym.spaces.Box) and len(space.shape) == 1 and space.shape[0] >= 1
+                and np.issubdtype(space.dtype, np.floating)):
+            raise PlantError(f"plant.env_id={env_id!r}: its action space is {space}; kexp needs a 1-D Box of floats "
+                             "(m continuous inputs)")
         try:
             env.reset(seed=0)
         except Exception as exc:  # noqa: BLE001
