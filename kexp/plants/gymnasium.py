@@ -260,7 +260,7 @@ def make_gymnasium_plant(config) -> GymnasiumPlant:
                          f"built ({_short(cause)}); check the keyword arguments it takes") from None
     try:
         env = wrapped.unwrapped
-        space = wrapped.action_space
+        space = env.action_space      # what unwrapped.step takes (a wrapper may rescale its own)
         if not (isinstance(space, gym.spaces.Box) and len(space.shape) == 1 and space.shape[0] >= 1
                 and np.issubdtype(space.dtype, np.floating)):
             raise PlantError(f"plant.env_id={env_id!r}: its action space is {space}; kexp needs a 1-D Box of floats "
