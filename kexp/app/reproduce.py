@@ -67,13 +67,26 @@ def generated_x0(seed: int, low, high, n: int) -> list[tuple[float, ...]]:
     if is_number(low) and is_number(high):
         lo, hi = np.repeat(lo, 2), np.repeat(hi, 2)
     if lo.size != hi.size:
-        raise ReportError(f"low {list(lo)} and high {list(hi)}: one bound per state in each ({lo.size} and "
+        raise ReportError(f"low {lo.tolist()} and high {hi.tolist()}: one bound per state in each ({lo.size} and "
                           f"{hi.size} given)")
     if np.any(lo > hi):
         i = int(np.argmax(lo > hi))
         raise ReportError(f"state {i + 1}: low {lo[i]:g} > high {hi[i]:g}; give low <= high (equal fixes the state)")
     draws = np.random.default_rng(seed).uniform(lo[:, None], hi[:, None], (lo.size, n)).T
     return [tuple(float(v) for v in x) for x in draws]
+
+
+def corner(name: str, text: str) -> list[float]:
+    """A box corner given on the command line, 'L1,L2,…' (one number per state), as floats; ReportError naming
+    the argument otherwise."""
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if not vals or not all(math.isfinite(v) for v in vals):
+        raise ReportError(f"{name} {text!r}: give finite numbers, one per state, separated by commas "
+                          "(e.g. -0.5,-0.2,0,0)")
+    return vals
 
 
 def _known_x0() -> dict:

@@ -5,6 +5,8 @@ ratio to the oracle (nonlinear MPC with the true model) on the same initial cond
     kexp-results table results/*.csv                     # print the Markdown table (the README's)
     kexp-results robustness results/*.csv results/robustness/*.csv   # the robustness table (the README's)
     kexp-results sample CSV N / compare CSV NEW.csv      # re-run a committed row's x0 and compare (reproduce.py)
+    kexp-results plants results/<system>_*.csv           # each configuration against the system's LQR (plants)
+    kexp-results x0 [--seed 42] [-n 100] -- L1,…,Ln H1,…,Hn  # a box's x0 as a Hydra list (reproduce.py)
 
 The condensed CSVs are small and committed, so the table can be regenerated (and is, by a test) without
 re-running the sweeps.  A CSV's name is ``<system>_<config>.csv``; the oracle of a system is its ``*_nmpc.csv``;
@@ -264,6 +266,15 @@ def main(argv=None) -> None:
     sa = sub.add_parser("sample", help="print N of a CSV's x0 as one Hydra list value (kexp.app.reproduce)")
     sa.add_argument("csv")
     sa.add_argument("n", type=int, help="how many x0, evenly spaced over the CSV's rows")
+    pl = sub.add_parser("plants", help="print the Markdown plants view: each configuration against the system's "
+                                       "LQR, x0 by x0 (kexp.app.plants_view)")
+    pl.add_argument("csv", nargs="+", help="<system>_<configuration>.csv rows (and <system>_ocp.csv, if any)")
+    x0 = sub.add_parser("x0", help="print N x0 drawn from a box of n states as one Hydra list value "
+                                   "(kexp.app.reproduce.generated_x0)")
+    x0.add_argument("low", help="the box's low corner, one number per state, comma-separated: -0.5,-0.2,0,0")
+    x0.add_argument("high", help="its high corner; a state whose low equals its high is fixed (zero velocities)")
+    x0.add_argument("--seed", type=int, default=42, help="numpy default_rng seed (42)")
+    x0.add_argument("-n", type=int, default=100, help="how many x0 (100)")
     co = sub.add_parser("compare", help="compare a re-run's CSV with the committed one, run by run (exit 1 if "
                                         "any run disagrees)")
     co.add_argument("committed")
@@ -279,6 +290,13 @@ def main(argv=None) -> None:
                 comparison = reproduce.compare(args.committed, args.new, args.rtol)
                 emit(comparison.report())
                 sys.exit(0 if comparison.agrees else 1)
+        elif args.cmd == "plants":
+            from .plants_view import table as plants_table
+            emit(plants_table(args.csv))
+        elif args.cmd == "x0":
+            from . import reproduce
+            emit(reproduce.hydra_list(reproduce.generated_x0(args.seed, reproduce.corner("low", args.low),
+                                                             reproduce.corner("high", args.high), args.n)))
         elif args.cmd == "collect":
             print(f"wrote {collect(args.sweep, args.name, args.out)}")
         elif args.cmd == "robustness":
