@@ -12,9 +12,9 @@ x0_1 … x0_n, to the CSVs' 10 digits):
 - LQR failures saved: successes on the x0 where the LQR row fails (no success or a failed job) / those x0;
 - median J: over this configuration's successful runs;
 - J/J_LQR median and worst: over the x0 where both succeed;
-- saved of the savable LQR failures: with ``<system>_ocp.csv`` (columns x0_1 … x0_n and ``feasible`` True/False: whether a
-  long-horizon optimal-control problem stabilises from that x0), the LQR failures this configuration saves among
-  those the check found feasible, "k of j"; "not checked" without that file;
+- saved of the savable LQR failures: with ``<system>_ocp.csv`` (columns x0_1 … x0_n and ``feasible``
+  True/False: whether a long-horizon optimal-control problem stabilises from that x0), the LQR failures this
+  configuration saves among those the check found feasible, "k of j"; "not checked" without that file;
 - J/J_oracle: "n/a (no formula)" when the system has no ``<system>_nmpc.csv``, else its J/J_oracle median.
 
 Below the table, one line per system: how many LQR failures could be saved at all (the check's verdict).

@@ -113,7 +113,8 @@ def table(paths) -> str:
         ls, lr = _cell(lmpc, oracle, none)
         qs, qr = _cell(lqr, oracle, none)
         lr, qr = lr + (mark if lr[0].isdigit() else ""), qr + (mark if qr[0].isdigit() else "")
-        os_ = "n/a" if none == NO_ORACLE else "–" if oracle is None or mark else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}"
+        os_ = ("n/a" if none == NO_ORACLE else "–" if oracle is None or mark
+               else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}")
         g = "known" if inputs == "projection" else "regressed"
         if noise != 0:
             sm = smooth.replace("Savitzky–Golay, window ", "SG ").split(",")[0]
