@@ -266,6 +266,11 @@ def main(argv=None) -> None:
     sa = sub.add_parser("sample", help="print N of a CSV's x0 as one Hydra list value (kexp.app.reproduce)")
     sa.add_argument("csv")
     sa.add_argument("n", type=int, help="how many x0, evenly spaced over the CSV's rows")
+    co = sub.add_parser("compare", help="compare a re-run's CSV with the committed one, run by run (exit 1 if "
+                                        "any run disagrees)")
+    co.add_argument("committed")
+    co.add_argument("new")
+    co.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance on cost and max |u| (1e-6)")
     pl = sub.add_parser("plants", help="print the Markdown plants view: each configuration against the system's "
                                        "LQR, x0 by x0 (kexp.app.plants_view)")
     pl.add_argument("csv", nargs="+", help="<system>_<configuration>.csv rows (and <system>_ocp.csv, if any)")
@@ -275,11 +280,6 @@ def main(argv=None) -> None:
     x0.add_argument("high", help="its high corner; a state whose low equals its high is fixed (zero velocities)")
     x0.add_argument("--seed", type=int, default=42, help="numpy default_rng seed (42)")
     x0.add_argument("-n", type=int, default=100, help="how many x0 (100)")
-    co = sub.add_parser("compare", help="compare a re-run's CSV with the committed one, run by run (exit 1 if "
-                                        "any run disagrees)")
-    co.add_argument("committed")
-    co.add_argument("new")
-    co.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance on cost and max |u| (1e-6)")
     args = p.parse_args(argv)
     try:
         if args.cmd in ("sample", "compare"):
