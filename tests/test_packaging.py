@@ -32,7 +32,7 @@ def test_pyproject_lists_every_package_and_config_group():
     listed = PYPROJECT["tool"]["setuptools"]["packages"]
     assert sorted(listed) == sorted(code + ["kexp.conf"] + [f"kexp.conf.{g}" for g in groups])
     assert PYPROJECT["tool"]["setuptools"]["package-dir"] == {"kexp.conf": "conf"}
-    assert len(groups) == 10 and "controller" in groups
+    assert len(groups) == 11 and "controller" in groups and "plant" in groups
 
 
 def test_version_is_the_projects_and_kexp_dash_dash_version_prints_it(capsys, monkeypatch):
@@ -126,8 +126,9 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp
     (wheel,) = dist.glob("kexp-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     confs = {f"kexp/conf/{p.relative_to(REPO / 'conf').as_posix()}" for p in (REPO / "conf").rglob("*.yaml")}
-    assert len(confs) == 29 and confs <= names and "kexp/conf/config.yaml" in names
-    assert "kexp/app/main.py" in names and not any(n.startswith("conf/") for n in names)
+    assert len(confs) == 33 and confs <= names and "kexp/conf/config.yaml" in names
+    assert "kexp/app/main.py" in names and "kexp/plants/gymnasium.py" in names
+    assert not any(n.startswith("conf/") for n in names)
 
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)

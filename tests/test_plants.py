@@ -19,6 +19,7 @@ from kexp.errors import ConfigError, PlantError
 from kexp.plants import CheckedPlant, IntegratorPlant, PlantConfig, PlantSystem, make_plant
 from kexp.plants.collect import collect_from_plant
 from kexp.recording import read_log
+from kexp.recording.diff import diff_logs
 from kexp.simulate import SimConfig, closed_loop
 from kexp.simulate.stepper import HeldInputStepper
 from kexp.systems import VanDerPol
@@ -80,6 +81,15 @@ def test_the_experiment_on_a_user_plant_equals_the_built_in_run(tmp_path):
     info = read_log(tmp_path / "b" / "run.mcap").one("/run_info")
     assert info["plant"]["kind"] == "python" and info["plant"]["id"] == "plant_rigs:VdpRig"
     assert read_log(tmp_path / "b" / "run.mcap").one("/summary")["plant"]["kind"] == "python"
+    # kexp-diff under the portable policy: every step and prediction agree; the config and the summary say which
+    # plant ran, so those differ, and the open loop (one integration of the whole horizon against 200 held steps
+    # of the rig: measured 2.1e-10 apart, just past the portable rule's bound) is compared here to 1e-8
+    a_log, b_log = read_log(tmp_path / "a" / "run.mcap"), read_log(tmp_path / "b" / "run.mcap")
+    d = diff_logs(a_log, b_log, policy="portable")
+    assert {ch for ch, (_, n_diff) in d.per_channel.items() if n_diff} <= {"/config", "/summary", "/open_loop"}
+    assert d.per_channel["/step"] == (200, 0) and d.per_channel["/prediction"][1] == 0
+    ol = [np.array([m["x"] for m in log.messages("/open_loop")]) for log in (a_log, b_log)]
+    assert ol[0].shape == ol[1].shape == (201, 2) and np.max(np.abs(ol[0] - ol[1])) < 1e-8
 
 
 def test_the_default_config_has_no_plant_section_in_its_hash():
