@@ -116,6 +116,10 @@ def test_plants_view_without_the_check_says_not_checked(tmp_path, capsys):
                                      "| n/a (no formula) |"
     assert lines[-1] == ("- cart: LQR fails from 2 of 4 x0; LQR failures that could be saved: not checked "
                          "(no cart_ocp.csv)")
+    code, out, err = _run(capsys, "plants", tmp_path / "cart_lmpc.csv")          # no LQR row: nothing against it
+    assert code == 0 and out.splitlines()[2:] == [
+        "| cart | lmpc | 3/4 | – | – | 1.900 | – | – | – | n/a (no formula) |", "",
+        "- cart: no cart_lqr.csv: no LQR reference, the columns against it say –"]
 
 
 def test_plants_view_refusals_are_one_line(tmp_path, capsys):

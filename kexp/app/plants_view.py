@@ -154,7 +154,7 @@ def _line(r: Row, has_ocp: bool) -> str:
     med = _num(float(np.median(r.ratios))) if r.ratios else "–"
     worst = _num(max(r.ratios)) if r.ratios else "–"
     saved = "–" if r.on_lqr_failures is None else f"{r.on_lqr_failures[0]} of {r.on_lqr_failures[1]}"
-    could = ("not checked" if not has_ocp else "–" if r.savable is None
+    could = ("–" if r.on_lqr_failures is None else "not checked" if not has_ocp
              else f"{r.savable[0]} of {r.savable[1]}")
     oracle = "n/a (no formula)" if r.oracle is None else _num(r.oracle)
     return (f"| {r.system} | {r.config} | {_frac((r.successes, r.runs))} | {_frac(r.on_lqr_successes)} | {saved} "
