@@ -1,5 +1,5 @@
-# Shared by results/robustness.sh and results/regions.sh (sourced, not run): the initial conditions of a results
-# row and the sweep that condenses one row into a CSV.
+# Shared by results/robustness.sh, results/regions.sh and the plant rows' scripts (sourced, not run): the initial
+# conditions of a results row and the sweep that condenses one row into a CSV.
 
 # x0_list LOW HIGH [SEED N]: the N initial conditions np.random.default_rng(SEED).uniform(LOW, HIGH, (2, N)).T
 # (SEED 42, N 100 unless given) as one Hydra list value (kexp.app.reproduce: kexp-results sample knows them too)
@@ -30,4 +30,12 @@ sweep_row() {
     kexp --multirun hydra/launcher=joblib hydra.launcher.n_jobs="${KEXP_SWEEP_JOBS:-2}" logging.rrd=false \
         logging.mcap=false "sim.x0=$x0" "$@" hydra.sweep.dir="$dir" > "$dir.log" 2>&1 || true
     kexp-results collect "$dir" "$row" -o "$dest" || echo "== $row: no results (see $dir.log)"
+}
+
+# x0_box 'L1,…,Ln' 'H1,…,Hn' [SEED N]: the N initial conditions of n states drawn from the box [L_i, H_i] state by
+# state (np.random.default_rng(SEED), SEED 42, N 100 unless given; L_i = H_i fixes state i, e.g. zero velocities)
+# as one Hydra list value (kexp-results x0; kexp.app.reproduce.generated_x0).  x0_box '-1,-1' '1,1' prints what
+# x0_list -1 1 prints.
+x0_box() {
+    kexp-results x0 --seed "${3:-42}" -n "${4:-100}" -- "$1" "$2"     # --: a corner may start with '-' 
 }

@@ -240,7 +240,8 @@ def test_a_bug_leaves_an_error_summary_not_a_running_one(tmp_path):
     ("kexp.app.report", [], "kexp-report: error: the following arguments are required: sweep_dir (see kexp-report "
                             "--help)"),
     ("kexp.app.results", ["nope"], "kexp-results: error: argument cmd: invalid choice: 'nope' (choose from "
-                                   "'collect', 'table', 'robustness', 'sample', 'compare') (see kexp-results --help)"),
+                                   "'collect', 'table', 'robustness', 'sample', 'compare', 'plants', 'x0') "
+                                   "(see kexp-results --help)"),
     ("kexp.analysis.figures", ["paper"], "kexp-figures: error: the following arguments are required: source, "
                                          "-o/--out (see kexp-figures --help)"),
 ])

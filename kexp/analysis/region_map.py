@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..app.aggregate import ReportError
-from ..app.results import read_csv, split_name
+from ..app.results import read_csv, split_name, x0_columns, x0_key
 from ..errors import KexpError
 from .roa import _plt
 
@@ -39,17 +39,22 @@ class RegionMapError(KexpError):
 
 
 def read_results(path: str | Path) -> dict[tuple[float, float], dict]:
-    """{x0: {'ok': completed, 'success': bool, 'cost': float}} from a results CSV, checked as kexp-results checks
-    it (:func:`kexp.app.results.read_csv`); RegionMapError names what is wrong with the file."""
+    """{x0: {'ok': completed, 'success': bool, 'cost': float}} from a results CSV of a 2-state system, checked as
+    kexp-results checks it (:func:`kexp.app.results.read_csv`); RegionMapError names what is wrong with the file,
+    or says that a map draws 2 states when the CSV's x0 has another number (x0_1 … x0_n)."""
     try:
         rows = read_csv(path)
     except ReportError as exc:
         raise RegionMapError(str(exc)) from None
+    cols = x0_columns(rows[0])
+    if len(cols) != 2:
+        raise RegionMapError(f"{path}: runs of {len(cols)} states (x0_1 … x0_{len(cols)}); a region map draws the "
+                             "plane of a 2-state system's x0: tabulate this one (kexp-results table or plants)")
     out = {}
     for r in rows:
-        if r["x0_1"] in ("", None) or r["x0_2"] in ("", None):
+        if "" in x0_key(r, cols) or None in x0_key(r, cols):
             continue  # a failed job without a known x0 cannot be placed
-        key = (float(r["x0_1"]), float(r["x0_2"]))
+        key = tuple(float(v) for v in x0_key(r, cols))
         cost = float(r["cost"]) if r["cost"] not in ("", None) else float("nan")
         out[key] = {"ok": r["status"] == "completed", "success": r["success"] == "True", "cost": cost}
     return out

@@ -6,8 +6,9 @@ compare the new summaries with the committed ones, run by run.
 
 ``results/reproduce.sh`` does both for any committed CSV, with the row's overrides from the script that made it.
 A CSV keeps x0 to 10 significant digits; :func:`sample` gives the full-precision x0 the row scripts swept
-(``np.random.default_rng(seed).uniform(low, high, (2, n))``, :data:`GENERATORS`) wherever a CSV's x0 is one of
-theirs, so that a re-run starts where the committed run started, bit for bit.
+(``np.random.default_rng(seed).uniform(low, high, (2, n))``, or per state for a box of n states,
+:data:`GENERATORS`) wherever a CSV's x0 is one of theirs, so that a re-run starts where the committed run started,
+bit for bit.  A run is known by its full x0 (x0_1 … x0_n).
 
 What agrees (:func:`compare`): the discrete columns exactly (status, success, fallbacks and the conditions); cost
 and max |u| to ``rtol`` of the committed value (default 1e-6: the portable golden policy's bound on a model's
@@ -25,10 +26,12 @@ import numpy as np
 
 from ..errors import is_number
 from .aggregate import ReportError
-from .results import read_csv
+from .results import read_csv, x0_columns, x0_key
 
 GENERATORS = ((42, -1.0, 1.0, 100), (42, -2.0, 2.0, 100), (43, -2.0, 2.0, 300))
-"""(seed, low, high, n) of the x0 the row scripts sweep: results/robustness.sh, results/regions.sh and its --map."""
+"""(seed, low, high, n) of the x0 the row scripts sweep: results/robustness.sh, results/regions.sh and its --map.
+low and high are numbers (2 states) or one number per state (a box, :func:`generated_x0`): a plant row's box
+(results/sweep_lib.sh x0_box) belongs here too, so that ``sample`` re-runs its full-precision x0."""
 EXACT = ("status", "success", "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing",
          "sim_noise", "mismatch")
 RELATIVE = ("cost", "max_abs_u")
@@ -36,15 +39,59 @@ SETTLE_ATOL = 0.0101     # one control step of 0.01 s, and the CSV's rounding
 SHOWN = 10               # runs that disagree listed in a report
 
 
-def generated_x0(seed: int, low: float, high: float, n: int) -> list[tuple[float, float]]:
-    """The ``n`` x0 ``np.random.default_rng(seed).uniform(low, high, (2, n)).T`` as Python floats: the row
-    scripts' initial conditions (results/sweep_lib.sh's x0_list prints them with :func:`hydra_list`)."""
-    return [(float(a), float(b)) for a, b in np.random.default_rng(seed).uniform(low, high, (2, n)).T]
+def _bounds(name: str, v) -> np.ndarray:
+    """``v`` (a number or one number per state) as a float vector; ReportError when it is not finite numbers."""
+    vals = [v] if is_number(v) else list(v) if isinstance(v, (list, tuple, np.ndarray)) else [v]
+    if not vals or not all(is_number(x) and math.isfinite(x) for x in vals):
+        raise ReportError(f"{name} {v!r}: give finite numbers, one per state (or one number for both states of a "
+                          "2-state system)")
+    return np.array(vals, dtype=float)
+
+
+def generated_x0(seed: int, low, high, n: int) -> list[tuple[float, ...]]:
+    """The ``n`` x0 the row scripts sweep, as tuples of Python floats (results/sweep_lib.sh's x0_list and x0_box
+    print them with :func:`hydra_list`).
+
+    - ``low``, ``high`` numbers: 2 states, ``np.random.default_rng(seed).uniform(low, high, (2, n)).T`` (the
+      built-in systems' rows, unchanged);
+    - ``low``, ``high`` one number per state (a box, n_states >= 1): state i is drawn from [low_i, high_i), state by
+      state as above (``uniform(low[:, None], high[:, None], (n_states, n)).T``: with equal bounds on all states
+      the same numbers as the 2-state draws); low_i == high_i fixes state i (e.g. zero velocities).
+
+    ReportError when the bounds are not finite numbers of one length, a low exceeds its high, or ``n`` < 1."""
+    if not (is_number(n, integer=True) and n >= 1):
+        raise ReportError(f"number of x0 {n!r}: give a whole number >= 1")
+    if not is_number(seed, integer=True):
+        raise ReportError(f"seed {seed!r}: give a whole number")
+    lo, hi = _bounds("low", low), _bounds("high", high)
+    if is_number(low) and is_number(high):
+        lo, hi = np.repeat(lo, 2), np.repeat(hi, 2)
+    if lo.size != hi.size:
+        raise ReportError(f"low {lo.tolist()} and high {hi.tolist()}: one bound per state in each ({lo.size} and "
+                          f"{hi.size} given)")
+    if np.any(lo > hi):
+        i = int(np.argmax(lo > hi))
+        raise ReportError(f"state {i + 1}: low {lo[i]:g} > high {hi[i]:g}; give low <= high (equal fixes the state)")
+    draws = np.random.default_rng(seed).uniform(lo[:, None], hi[:, None], (lo.size, n)).T
+    return [tuple(float(v) for v in x) for x in draws]
+
+
+def corner(name: str, text: str) -> list[float]:
+    """A box corner given on the command line, 'L1,L2,…' (one number per state), as floats; ReportError naming
+    the argument otherwise."""
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        vals = []
+    if not vals or not all(math.isfinite(v) for v in vals):
+        raise ReportError(f"{name} {text!r}: give finite numbers, one per state, separated by commas "
+                          "(e.g. -0.5,-0.2,0,0)")
+    return vals
 
 
 def _known_x0() -> dict:
-    """{(x0_1, x0_2) as a CSV writes them (%.10g): the full-precision pair} over :data:`GENERATORS`."""
-    return {(f"{a:.10g}", f"{b:.10g}"): (a, b) for gen in GENERATORS for a, b in generated_x0(*gen)}
+    """{x0 as a CSV writes it (each entry %.10g): the full-precision x0} over :data:`GENERATORS`."""
+    return {tuple(f"{v:.10g}" for v in x): x for gen in GENERATORS for x in generated_x0(*gen)}
 
 
 def sample(path: str | Path, n: int) -> list[tuple[float, float]]:
@@ -53,27 +100,29 @@ def sample(path: str | Path, n: int) -> list[tuple[float, float]]:
     if not (is_number(n, integer=True) and n >= 1):
         raise ReportError(f"sample size {n!r}: give a whole number >= 1")
     rows = read_csv(path)
+    cols = x0_columns(rows[0])
     idx = np.unique(np.linspace(0, len(rows) - 1, min(n, len(rows))).round().astype(int))
     known = _known_x0()
     out = []
     for i in idx:
-        key = (rows[i]["x0_1"], rows[i]["x0_2"])
+        key = x0_key(rows[i], cols)
         if "" in key:
             raise ReportError(f"{path}: row {i + 2} has no x0; a run without one cannot be re-run")
-        out.append(known.get(key, (float(key[0]), float(key[1]))))
+        out.append(known.get(key, tuple(float(v) for v in key)))
     return out
 
 
 def hydra_list(x0s) -> str:
-    """x0s as one Hydra list value (``sim.x0=...`` of a multirun), each float written exactly (repr)."""
-    return ",".join(f"[{a!r},{b!r}]" for a, b in x0s)
+    """x0s (each a sequence of n floats) as one Hydra list value (``sim.x0=...`` of a multirun), each float
+    written exactly (repr): ``[a,b],[c,d]`` for 2 states."""
+    return ",".join("[" + ",".join(repr(float(v)) for v in x) + "]" for x in x0s)
 
 
 @dataclass(frozen=True)
 class RunDiff:
     """One re-run against the committed run of the same x0: ``fields`` the columns that disagree, each
     (column, committed value, new value) as the CSVs hold them; empty when the run agrees."""
-    x0: tuple[str, str]
+    x0: tuple[str, ...]
     fields: tuple[tuple[str, str, str], ...]
 
     @property
@@ -108,7 +157,7 @@ class Comparison:
         differ = [r for r in self.runs if not r.agrees]
         for r in differ[:SHOWN]:
             what = "; ".join(f"{c} {a} -> {b}" for c, a, b in r.fields)
-            lines.append(f"  x0 ({r.x0[0]}, {r.x0[1]}): {what}")
+            lines.append(f"  x0 ({', '.join(r.x0)}): {what}")
         if len(differ) > SHOWN:
             lines.append(f"  … and {len(differ) - SHOWN} more runs that disagree")
         return "\n".join(lines)
@@ -142,15 +191,19 @@ def compare(committed: str | Path, new: str | Path, rtol: float = 1e-6) -> Compa
         raise ReportError(f"{committed} and {new}: rows of two names; compare a re-run of a row with the committed "
                           "row of the same <system>_<configuration>")
     old_rows, new_rows = read_csv(committed), read_csv(new)
-    old = {(r["x0_1"], r["x0_2"]): r for r in old_rows}
+    ocols, ncols = x0_columns(old_rows[0]), x0_columns(new_rows[0])
+    if len(ocols) != len(ncols):
+        raise ReportError(f"{committed} and {new}: runs of {len(ocols)} and {len(ncols)} states; compare a re-run "
+                          "of a row with the committed row of the same system")
+    old = {x0_key(r, ocols): r for r in old_rows}
     columns = EXACT + RELATIVE + ("settling_time_s",)
     shared = [c for c in columns if c in old_rows[0] and c in new_rows[0]]
     skipped = tuple(c for c in columns if (c in old_rows[0]) != (c in new_rows[0]))
     runs, worst = [], math.nan
     for r in new_rows:
-        key = (r["x0_1"], r["x0_2"])
+        key = x0_key(r, ncols)
         if key not in old:
-            raise ReportError(f"{new}: x0 ({key[0]}, {key[1]}) is not a run of {committed}; compare a re-run of "
+            raise ReportError(f"{new}: x0 ({', '.join(key)}) is not a run of {committed}; compare a re-run of "
                               "the committed row's x0 (kexp-results sample)")
         o = old[key]
         diffs = tuple((c, o[c], r[c]) for c in shared if _differs(c, o[c], r[c], rtol))

@@ -7,7 +7,9 @@ fraction of the data's RMS; the data carry the same), ``smoothing`` (the data's 
 'raw' or 'SG <window>' in the table), ``mismatch`` (the plant's parameters that differ from the
 data's system).  CSVs written before these columns existed count as unperturbed runs with G known.  The ratio
 J / J_oracle is taken per initial condition against the oracle (controller ``nmpc``) with the same noise and
-plant; the LQR (true linearisation) and the oracle know the plant, so only the LMPC is data-driven.
+plant; the LQR (true linearisation) and the oracle know the plant, so only the LMPC is data-driven.  A system
+with no oracle under any condition (a plant with no formula) says "n/a (no oracle)".  Runs are matched by their
+full x0 (x0_1 … x0_n); ``<system>_ocp.csv`` (the plants view's feasibility check) is skipped.
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .aggregate import ReportError
-from .results import read_csv, split_name, split_stem
+from .results import NO_ORACLE, is_ocp, read_csv, split_name, split_stem, x0_columns, x0_key
 
 KINDS = ("lmpc", "lqr", "nmpc")
 
@@ -44,6 +46,8 @@ def load(paths) -> dict:
     out: dict = {}
     unique = {Path(p).resolve(): Path(p) for p in sorted(map(Path, paths), reverse=True)}  # a file given twice
     for p in sorted(unique.values()):
+        if is_ocp(p):
+            continue
         rows = read_csv(p)
         system = split_name(p)[0]
         keys = {_conditions(p.stem, r) for r in rows if r.get("status") == "completed"} or \
@@ -55,7 +59,8 @@ def load(paths) -> dict:
             continue
         if key in out:
             raise ReportError(f"{p} and {out[key][0]} hold the same runs' conditions {key}; keep one")
-        out[key] = (p.name, {(r["x0_1"], r["x0_2"]): (r["success"] == "True", _f(r["cost"])) for r in rows})
+        cols = x0_columns(rows[0])
+        out[key] = (p.name, {x0_key(r, cols): (r["success"] == "True", _f(r["cost"])) for r in rows})
     return out
 
 
@@ -67,12 +72,12 @@ def _plant(m: str) -> str:
     return "nominal" if not m else m.replace("mu=", "μ = ").replace("c=", "c = ")
 
 
-def _cell(runs: dict | None, oracle: dict | None) -> tuple[str, str]:
+def _cell(runs: dict | None, oracle: dict | None, none: str = "no oracle") -> tuple[str, str]:
     if runs is None:
         return "–", "–"
     succ = f"{sum(s for s, _ in runs.values())}/{len(runs)}"
     if oracle is None:
-        return succ, "no oracle"
+        return succ, none
     # an x0 counts where both costs are finite and the oracle's is > 0 (a failed oracle run has none to compare)
     ratios = np.array([c / oracle[x][1] for x, (s, c) in runs.items()
                        if x in oracle and np.isfinite(c) and np.isfinite(oracle[x][1]) and oracle[x][1] > 0])
@@ -103,10 +108,13 @@ def table(paths) -> str:
         if oracle is None and noise != 0:  # no oracle under this noise: the noise-free one on the same plant
             oracle = base(system, "nmpc", 0.0, mism)
             mark = " †" if oracle is not None else ""
-        ls, lr = _cell(lmpc, oracle)
-        qs, qr = _cell(lqr, oracle)
+        # no oracle under any condition: a plant with no formula; else none under this row's (e.g. its plant)
+        none = "no oracle" if any(k[:2] == (system, "nmpc") for k in data) else NO_ORACLE
+        ls, lr = _cell(lmpc, oracle, none)
+        qs, qr = _cell(lqr, oracle, none)
         lr, qr = lr + (mark if lr[0].isdigit() else ""), qr + (mark if qr[0].isdigit() else "")
-        os_ = "–" if oracle is None or mark else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}"
+        os_ = ("n/a" if none == NO_ORACLE else "–" if oracle is None or mark
+               else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}")
         g = "known" if inputs == "projection" else "regressed"
         if noise != 0:
             sm = smooth.replace("Savitzky–Golay, window ", "SG ").split(",")[0]
