@@ -50,6 +50,7 @@ class PlantLinearisation:
     steps: int
 
     def describe(self) -> str:
+        """One line: the step size, the steps taken and the equilibrium drift."""
         return (f"plant linearisation: central differences through the plant's step, eps = {self.eps:g} (relative), "
                 f"{self.steps} steps of Δ = {self.dt:g} s; ‖step(x_eq) − x_eq‖ = {self.drift:.2g}")
 
