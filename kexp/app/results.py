@@ -177,9 +177,11 @@ def table(paths: list[str | Path]) -> str:
         if config in ("lqr", "nmpc"):
             certs = ["n/a (true model)"]
         fmt = lambda a, f=".3f", agg=np.median: "–" if a.size == 0 else format(agg(a), f)  # noqa: E731
+        # no <system>_nmpc.csv: a plant without a formula has no oracle (controller=nmpc needs F and G)
+        r_med, r_max = (fmt(ratios), fmt(ratios, agg=np.max)) if f"{system}_nmpc" in data else ("n/a", "n/a")
         lines.append(
             f"| {system} | {config} | {succ}/{len(rows)} | {fmt(cost)} | {fmt(cost, agg=np.max)} | "
-            f"{fmt(ratios)} | {fmt(ratios, agg=np.max)} | {fmt(settle, '.2f')} | "
+            f"{r_med} | {r_max} | {fmt(settle, '.2f')} | "
             f"{fmt(med, '.2f')} / {fmt(p99, '.2f', np.max)} | {'; '.join(certs) or '–'} |")
     return "\n".join(lines)
 
