@@ -223,3 +223,71 @@ def test_the_results_table_says_n_a_where_there_is_no_oracle(tmp_path):
     assert any(line.startswith("| rig | lmpc | 3/3 | 2.000 | 3.000 | n/a | n/a | 2.50 |") for line in out)
     oracle = _write(tmp_path / "rig_nmpc.csv", [_row(i, controller="nmpc_oracle") for i in range(3)])
     assert table([lmpc, oracle]).splitlines()[2].startswith("| rig | lmpc | 3/3 | 2.000 | 3.000 | 1.000 | 1.000 |")
+
+
+class _GymState:
+    """A Gymnasium environment as a plant, its state read and written directly (what kexp's gymnasium plant does,
+    written out here so that this test needs only gymnasium): Pendulum-v1's ``state`` (θ, θ̇), or a MuJoCo env's
+    (qpos, qvel)."""
+
+    def __init__(self, env_id):
+        import warnings
+        gym = pytest.importorskip("gymnasium")
+        if env_id != "Pendulum-v1":
+            pytest.importorskip("mujoco")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            self.env = gym.make(env_id).unwrapped
+        self.env.reset(seed=0)
+        self.dt, self.m = float(self.env.dt), 1
+        self.mujoco = hasattr(self.env, "data")
+        self.n = self.env.model.nq + self.env.model.nv if self.mujoco else 2
+
+    def reset(self, x0):
+        if self.mujoco:
+            nq = self.env.model.nq
+            self.env.set_state(np.asarray(x0[:nq]), np.asarray(x0[nq:]))
+        else:
+            self.env.state = np.array(x0, dtype=float)
+
+    def step(self, u):
+        self.env.step(np.asarray(u, dtype=float))
+        if self.mujoco:
+            return np.concatenate([self.env.data.qpos, self.env.data.qvel])
+        return np.array(self.env.state, dtype=float)
+
+
+def test_gymnasium_pendulum_linearisation_is_its_semi_implicit_euler_step():
+    """Pendulum-v1 steps θ̇⁺ = θ̇ + (a sin θ + b u)Δ, θ⁺ = θ + θ̇⁺Δ (a = 3g/2l = 15, b = 3/ml² = 3, Δ = 0.05 s):
+    about θ = 0 the linearisation is Ad = [[1 + aΔ², Δ], [aΔ, 1]], Bd = [bΔ², bΔ].  The central difference's error
+    is the truncation a·Δ·h²/6 = 1.25e-9 at eps = 1e-4 (measured 1.2e-9; 1.2e-13 at eps = 1e-6)."""
+    plant = _GymState("Pendulum-v1")
+    dt, a, b = 0.05, 15.0, 3.0
+    assert plant.dt == dt and 3 * plant.env.g / (2 * plant.env.l) == a and 3 / (plant.env.m * plant.env.l ** 2) == b
+    Ad, Bd, report = linearise_plant(plant, np.zeros(2))
+    assert report.drift == 0.0
+    assert np.abs(Ad - [[1 + a * dt * dt, dt], [a * dt, 1.0]]).max() < 2.5e-9
+    assert np.abs(Bd - [[b * dt * dt], [b * dt]]).max() < 2.5e-9
+
+
+def test_mujoco_inverted_pendulum_rests_off_zero():
+    """InvertedPendulum-v5's pole is drawn from (0, 0, 0) to (0.001, 0, 0.6): with the hinge at 0 its centre of
+    mass is off the pivot and it falls (one step moves the state by 1.9e-3, measured): x = 0 is refused.  It rests
+    at hinge angle −0.001/0.6 rad (one step moves it by 1.8e-9, measured; the root is −0.0016666651); there the
+    linearisation converges as eps² (differences between successive decades of eps: 5.3e-5, 5.3e-7, 5.3e-9, 5.3e-11)
+    and the discrete LQR stabilises it."""
+    plant = _GymState("InvertedPendulum-v5")
+    assert plant.n == 4 and plant.dt == pytest.approx(0.04)
+    with pytest.raises(PlantError, match=r"is not an equilibrium of the plant: one step with u = \[0\.0\] moves it by "
+                                         r"0\.0019"):
+        linearise_plant(plant, np.zeros(4))
+    rest = np.array([0.0, -0.001 / 0.6, 0.0, 0.0])
+    Ad, Bd, report = linearise_plant(plant, rest)
+    assert report.drift < 1e-8
+    Ad3, Bd3, _ = linearise_plant(plant, rest, eps=1e-3)
+    Ad5, Bd5, _ = linearise_plant(plant, rest, eps=1e-5)
+    d3, d5 = (max(np.abs(A - Ad).max(), np.abs(B - Bd).max()) for A, B in ((Ad3, Bd3), (Ad5, Bd5)))
+    assert 80 < d3 / d5 < 120   # O(eps²): the differences fall 100× per decade
+    K = discrete_lqr_gain(Ad, Bd, 1.0, 1.0, plant.dt)
+    assert np.max(np.abs(np.linalg.eigvals(Ad - Bd @ K))) < 1.0
+    assert np.max(np.abs(np.linalg.eigvals(Ad))) > 1.0   # open loop: the pole falls
