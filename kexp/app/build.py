@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 from ..data import DataConfig, DataSource, Excitation, IntegratorOptions, RegionFilter, make_sampler
 from ..dictionary import Monomials
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, PlantError
 from ..identify import IdentifyConfig, auto_scale
 from ..systems import make_system
 
@@ -280,6 +280,7 @@ def build_clf(cfg: Mapping[str, Any]):
 
 
 CONTROLLER_KINDS = ("lmpc", "explicit", "lqr", "nmpc")
+LINEARISATIONS = ("auto", "formula", "plant")   # controller.linearisation (kind lqr)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -295,20 +296,22 @@ class ControllerSpec:
     q: float = 1.0
     r: float = 1.0
     horizon: int = 100         # nmpc: prediction horizon in steps
+    linearisation: str = "auto"  # lqr: formula (F, G) | plant (finite differences of its step) | auto
 
 
 def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
     from ..control import LAWS, LmpcConfig
     cfg = dict(_plain(cfg))
     # the schema holds every kind's keys; null ones are not set (kexp.app.schema.ControllerSchema)
-    cfg = {k: v for k, v in cfg.items() if not (k in ("lmpc", "q", "r", "horizon") and v is None)}
+    cfg = {k: v for k, v in cfg.items() if not (k in ("lmpc", "q", "r", "horizon", "linearisation") and v is None)}
     kind = cfg.pop("kind", None)
     if kind not in CONTROLLER_KINDS:
         raise ConfigError(f"controller.kind={kind!r}; valid: {CONTROLLER_KINDS}")
     # 'lmpc' is accepted for every kind (used by kind lmpc only), so that `+experiment=X controller=lqr` works
     # on a preset that tunes the LMPC
     allowed = {"law", "law_params", "u_min", "u_max", "lmpc"} \
-        | ({"q", "r"} if kind in ("lqr", "nmpc") else set()) | ({"horizon"} if kind == "nmpc" else set())
+        | ({"q", "r"} if kind in ("lqr", "nmpc") else set()) | ({"horizon"} if kind == "nmpc" else set()) \
+        | ({"linearisation"} if kind == "lqr" else set())
     for key in cfg:
         if key not in allowed:
             raise ConfigError(f"controller.{key}: unknown key for kind {kind!r}; valid keys: {sorted(allowed)}")
@@ -327,14 +330,21 @@ def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
     horizon = cfg.get("horizon", 100)
     if not (isinstance(horizon, int) and not isinstance(horizon, bool) and horizon >= 1):
         raise ConfigError(f"controller.horizon={horizon!r}: use an int >= 1")
+    linearisation = cfg.get("linearisation", "auto")
+    if linearisation not in LINEARISATIONS:
+        raise ConfigError(f"controller.linearisation={linearisation!r}; valid: {LINEARISATIONS} (auto: the formula's "
+                          "F and G where the system has them, the plant's step otherwise)")
     return ControllerSpec(kind=kind, law=law, law_params=dict(cfg.get("law_params") or {}), u_min=to_t(u_min),
-                          u_max=to_t(u_max), lmpc=lmpc, q=q, r=r, horizon=horizon)
+                          u_max=to_t(u_max), lmpc=lmpc, q=q, r=r, horizon=horizon, linearisation=linearisation)
 
 
-def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_every: int = 0):
+def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_every: int = 0, ext_plant=None):
     """The controller for a validated spec, an identified model and its CLF.  ``system`` is what the true-model
     baselines (kind lqr: the linearisation; kind nmpc: the oracle's model) know: kexp passes the plant the closed
-    loop runs on (``sim.plant_params`` included), so that they stay references under plant mismatch."""
+    loop runs on (``sim.plant_params`` included), so that they stay references under plant mismatch.  Kind lqr
+    with ``spec.linearisation`` plant (auto: when ``system`` has no formula) linearises ``ext_plant`` (None: kexp's
+    integrator of ``system`` at the model's Δ) by finite differences (:mod:`kexp.control.plant_lqr`); this resets
+    and steps that plant before the closed loop resets it."""
     from ..control import ExplicitController, LqrController, make_law
     from ..control.lmpc import Lmpc
     law = make_law(spec.law, clf.lyap, spec.u_min, spec.u_max, model=model,
@@ -347,6 +357,19 @@ def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_eve
         from ..control.oracle import NmpcOracle
         return NmpcOracle(system, None, spec.u_min, spec.u_max, horizon_steps=spec.horizon, dt=model.dt, q=spec.q,
                           r=spec.r, terminal="lqr", clf=clf, law=law)
+    from ..plants import PlantSystem
+    no_formula = isinstance(system, PlantSystem)
+    if spec.linearisation == "formula" and no_formula:
+        raise ConfigError(f"controller.linearisation=formula needs F and G; plant {system.name!r} has none: set "
+                          "controller.linearisation=plant (or auto)")
+    if spec.linearisation == "plant" or no_formula:
+        from ..control.plant_lqr import PlantLqrController
+        from ..plants import IntegratorPlant
+        if no_formula and ext_plant is None:
+            raise PlantError(f"controller=lqr on plant {system.name!r} (no formula) linearises the plant itself: "
+                             "build_controller needs ext_plant=<the plant>")
+        plant = ext_plant if ext_plant is not None else IntegratorPlant(system, model.dt)
+        return PlantLqrController(plant, system.equilibrium, spec.u_min, spec.u_max, q=spec.q, r=spec.r, clf=clf)
     return LqrController(system, spec.u_min, spec.u_max, q=spec.q, r=spec.r, clf=clf)
 
 

@@ -76,6 +76,8 @@ def config_dict(cfg: Any) -> dict:
         out["logging"] = {k: v for k, v in out["logging"].items() if k != "writer"}
     if "system" in out:
         out["system"] = system_settings(out["system"])
+    if isinstance(out.get("controller"), dict) and out["controller"].get("linearisation", "") is None:
+        del out["controller"]["linearisation"]   # unset (auto): the config and its hash as before the key existed
     if out.get("plant") == _DEFAULT_PLANT:   # kexp's integrator: the config (and its hash) as before plants existed
         del out["plant"]
     return out
@@ -249,7 +251,10 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     phase("clf_s")
     # the true-model baselines (LQR, NMPC oracle) know the plant they control, mismatch included
     controller = build_controller(spec, plant, model, clf,
-                                  prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0)
+                                  prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0,
+                                  ext_plant=ext_plant)
+    if getattr(controller, "linearisation", None) is not None:   # the LQR on the plant's numerical linearisation
+        echo(controller.linearisation.describe())
     echo(clf.summary())
     phase("controller_s")   # includes loading the compiled kernels (numba's cache) on a worker's first job
     logger = None
@@ -373,6 +378,9 @@ def _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec) -> None:
                           "identification.inputs=regression (and data.excitation for forced data)")
     if ident_cfg.compare_projection:
         raise ConfigError(f"identification.compare_projection needs G; plant {name!r} has no formula: set it false")
+    if spec.kind == "lqr" and spec.linearisation == "formula":
+        raise ConfigError(f"controller.linearisation=formula needs F and G; plant {name!r} has none: set "
+                          "controller.linearisation=plant (or auto)")
     if spec.kind == "nmpc":
         raise ConfigError(f"controller=nmpc (the true-model oracle) needs a formula (F, G); plant {name!r} has none: "
                           "the oracle is n/a here (use controller=lqr, model_lqr or lmpc)")

@@ -5,3 +5,6 @@ from .explicit import ExplicitController, LqrController, linearise  # noqa: E402
 from .lmpc import ControlStep, Lmpc, LmpcConfig  # noqa: E402
 
 __all__ += ["ExplicitController", "LqrController", "linearise", "ControlStep", "Lmpc", "LmpcConfig"]
+from .plant_lqr import PlantLinearisation, PlantLqrController, linearise_plant  # noqa: E402
+
+__all__ += ["PlantLinearisation", "PlantLqrController", "linearise_plant"]
