@@ -210,21 +210,6 @@ def test_the_nmpc_oracle_is_refused_on_a_plant_without_a_formula(tmp_path):
     assert not (tmp_path / "run" / "summary.json").exists()
 
 
-def test_the_results_table_says_n_a_where_there_is_no_oracle(tmp_path):
-    """A plant without a formula has no NMPC oracle (no <system>_nmpc.csv): its rows' J / J_oracle columns say
-    n/a, not '–' (which means no run to compare); with an oracle the ratios are as before."""
-    from kexp.app.results import table
-    from test_results_cli import _row, _write
-    lqr = _write(tmp_path / "rig_lqr.csv", [_row(i, controller="lqr") for i in range(3)])
-    lmpc = _write(tmp_path / "rig_lmpc.csv")
-    out = table([lqr, lmpc]).splitlines()
-    assert len(out) == 4
-    assert any(line.startswith("| rig | lqr | 3/3 | 2.000 | 3.000 | n/a | n/a | 2.50 |") for line in out)
-    assert any(line.startswith("| rig | lmpc | 3/3 | 2.000 | 3.000 | n/a | n/a | 2.50 |") for line in out)
-    oracle = _write(tmp_path / "rig_nmpc.csv", [_row(i, controller="nmpc_oracle") for i in range(3)])
-    assert table([lmpc, oracle]).splitlines()[2].startswith("| rig | lmpc | 3/3 | 2.000 | 3.000 | 1.000 | 1.000 |")
-
-
 class _GymState:
     """A Gymnasium environment as a plant, its state read and written directly (what kexp's gymnasium plant does,
     written out here so that this test needs only gymnasium): Pendulum-v1's ``state`` (θ, θ̇), or a MuJoCo env's
