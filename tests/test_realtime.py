@@ -157,14 +157,7 @@ def test_a_plant_error_on_a_paced_step_still_hands_its_record_over():
 
 def test_paced_log_has_late_and_miss_per_step_and_the_same_steps(tmp_path):
     dt, n = 0.02, 8
-    logs = {}
-    for realtime in (False, True):
-        system, plant = rig(dt=dt, overrun=3 * dt, at=(3,))
-        path = tmp_path / f"rt{realtime}.mcap"
-        with RunLogger(path) as logger:
-            closed_loop(system, Constant([0.3]), X0, SimConfig(T=n * dt, dt=dt, realtime=realtime), plant=plant,
-                        on_step=lambda rec, step: logger.log_step(rec, step))
-        logs[realtime] = read_log(path)
+    logs = {rt: read_log(_paced_log(tmp_path / f"rt{rt}.mcap", dt, n, realtime=rt)) for rt in (False, True)}
     timing = [m for _, m in logs[True].channels["/timing"]]
     assert [m["k"] for m in timing] == list(range(n))
     assert all(set(m) == {"k", "t", "solve_time", "late", "miss"} for m in timing)
@@ -180,3 +173,43 @@ def test_the_log_writer_process_hands_late_and_miss_over():
     back = [r for r, _ in unpack_steps(*pack_steps(list(run.records)))]
     assert timing_messages(back) == timing_messages(run.records)
     assert [r.late for r in back] == [r.late for r in run.records]
+
+
+def _paced_log(path, dt=0.02, n=8, at=(3,), realtime=True):
+    system, plant = rig(dt=dt, overrun=3 * dt, at=at)
+    with RunLogger(path) as logger:
+        run = closed_loop(system, Constant([0.3]), X0, SimConfig(T=n * dt, dt=dt, realtime=realtime), plant=plant,
+                          on_step=lambda rec, step: logger.log_step(rec, step))
+        logger.log_summary(float(run.t[-1]), run.status, run.message, run.metrics.to_dict(), completed=True)
+    return path
+
+
+def _views(data):
+    views = {}
+    for chunk in data["reader"].stream(store=data["blueprints"][0]).to_chunks():
+        rb = chunk.to_record_batch()
+        cols = {n: rb.column(n).to_pylist()[-1] for n in rb.schema.names if "Blueprint:" in n}
+        if "ViewBlueprint:display_name" in cols:
+            views[cols["ViewBlueprint:display_name"][0]] = cols["ViewBlueprint:space_origin"][0]
+    return views
+
+
+def test_rerun_shows_lateness_and_misses_of_a_paced_run_only(tmp_path):
+    from kexp.recording.render import render
+    from test_render import load_rrd, scalars
+    paced = read_log(_paced_log(tmp_path / "paced.mcap"))
+    data = load_rrd(render(paced.path, tmp_path / "paced.rrd"))
+    ents, timing = data["entities"], paced.messages("/timing")
+    assert ents["/timing/late_ms"]["rows"] == ents["/timing/miss"]["rows"] == 8
+    np.testing.assert_allclose(scalars(ents["/timing/late_ms"]), [1e3 * m["late"] for m in timing])
+    np.testing.assert_array_equal(scalars(ents["/timing/miss"]), [float(m["miss"]) for m in timing])
+    assert scalars(ents["/timing/miss"])[3] == 1.0
+    misses = sum(m["miss"] for m in timing)
+    text = ents["/summary"]["static"]["TextDocument:text"][0]
+    assert (f"| real time (sim.realtime) | {misses} deadline miss(es) in 8 steps, largest lateness "
+            f"{max(m['late'] for m in timing) * 1e3:.3g} ms |") in text
+    assert _views(data)["lateness [ms] and misses (sim.realtime)"] == "/timing"
+    plain = load_rrd(render(_paced_log(tmp_path / "plain.mcap", realtime=False), tmp_path / "plain.rrd"))
+    assert "/timing/late_ms" not in plain["entities"] and "/timing/miss" not in plain["entities"]
+    assert "real time" not in plain["entities"]["/summary"]["static"]["TextDocument:text"][0]
+    assert _views(plain)["solve time [ms]"] == "/timing" and len(_views(plain)) == len(_views(data)) - 1

@@ -230,8 +230,9 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     z for controllers that need it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the
     records.  ``on_step(record, control_step)`` is called after each control decision, before the step is
     integrated (logging, progress); with ``config.realtime`` after the plant's step instead, with the step's
-    lateness in the record (also for a step whose plant step raised).  ``noise_scale`` (n,): the per-state scale of a relative ``config.noise``
-    (the data's RMS, :func:`kexp.data.noise.data_rms`); ConfigError if a relative noise has none."""
+    lateness in the record (also for a step whose plant step raised).  ``noise_scale`` (n,): the per-state
+    scale of a relative ``config.noise`` (the data's RMS, :func:`kexp.data.noise.data_rms`); ConfigError if a
+    relative noise has none."""
     try:
         x0 = np.asarray(x0, dtype=float)
     except (TypeError, ValueError):
