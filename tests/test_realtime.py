@@ -213,3 +213,26 @@ def test_rerun_shows_lateness_and_misses_of_a_paced_run_only(tmp_path):
     assert "/timing/late_ms" not in plain["entities"] and "/timing/miss" not in plain["entities"]
     assert "real time" not in plain["entities"]["/summary"]["static"]["TextDocument:text"][0]
     assert _views(plain)["solve time [ms]"] == "/timing" and len(_views(plain)) == len(_views(data)) - 1
+
+
+def test_the_app_paces_a_user_plant_and_logs_its_misses(tmp_path):
+    """kexp sim.realtime=true plant=python plant.target=plant_rigs:SleepyRig: every step in /timing with its
+    lateness, the overrunning step a miss, the run complete."""
+    from hydra import compose, initialize_config_dir
+    from kexp.app.conf import CONF_DIR
+    from kexp.app.experiment import run
+    dt = 0.01
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[
+            "data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
+            "controller.lmpc.blocks=null", "clf.grid=11", "logging.rrd=false", "logging.progress=false",
+            "cache.enabled=false", "sim.T=0.5", "sim.realtime=true", "sim.open_loop=false", "plant=python",
+            "plant.target=plant_rigs:SleepyRig", f"+plant.params.overrun={3 * dt}", "+plant.params.at=[5]"])
+    metrics = run(cfg, tmp_path, echo=lambda *_: None)
+    assert metrics["status"] == "completed"
+    log = read_log(tmp_path / "run.mcap")
+    assert log.one("/config")["config"]["sim"]["realtime"] is True
+    timing = log.messages("/timing")
+    assert [m["k"] for m in timing] == [m["k"] for m in log.messages("/step")] == list(range(50))
+    assert all(isinstance(m["late"], float) and m["miss"] is (m["late"] > 0) for m in timing)
+    assert timing[5]["miss"] is True and timing[5]["late"] >= 2 * dt
