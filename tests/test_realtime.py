@@ -167,12 +167,22 @@ def test_paced_log_has_late_and_miss_per_step_and_the_same_steps(tmp_path):
     assert logs[True].channels["/step"] == logs[False].channels["/step"]      # pacing changes no logged number
 
 
-def test_the_log_writer_process_hands_late_and_miss_over():
-    system, plant = rig(dt=0.01)
-    run = closed_loop(system, Constant([0.3]), X0, SimConfig(T=0.05, dt=0.01, realtime=True), plant=plant)
+def test_the_log_writer_process_hands_late_and_miss_over(tmp_path):
+    from kexp.recording.process_log import ProcessRunLogger
+    system, plant = rig(dt=0.01, overrun=0.03, at=(2,))
+    run = closed_loop(system, Constant([0.3]), X0, SimConfig(T=0.3, dt=0.01, realtime=True), plant=plant)
     back = [r for r, _ in unpack_steps(*pack_steps(list(run.records)))]
     assert timing_messages(back) == timing_messages(run.records)
-    assert [r.late for r in back] == [r.late for r in run.records]
+    assert [r.late for r in back] == [r.late for r in run.records] and back[2].miss is True
+    files = []
+    for kind in (RunLogger, ProcessRunLogger):
+        with kind(tmp_path / f"{kind.__name__}.mcap", flush_every=0.1) as logger:
+            for rec in run.records:
+                logger.log_step(rec)
+        files.append((tmp_path / f"{kind.__name__}.mcap").read_bytes())
+    assert files[0] == files[1]
+    assert [m["late"] for m in read_log(tmp_path / "ProcessRunLogger.mcap").messages("/timing")] == \
+        [r.late for r in run.records]
 
 
 def _paced_log(path, dt=0.02, n=8, at=(3,), realtime=True):
