@@ -246,3 +246,13 @@ def test_the_app_paces_a_user_plant_and_logs_its_misses(tmp_path):
     assert [m["k"] for m in timing] == [m["k"] for m in log.messages("/step")] == list(range(50))
     assert all(isinstance(m["late"], float) and m["miss"] is (m["late"] > 0) for m in timing)
     assert timing[5]["miss"] is True and timing[5]["late"] >= 2 * dt
+
+
+def test_cli_refuses_a_realtime_that_is_not_a_bool_in_one_line(tmp_path):
+    import subprocess
+    import sys
+    proc = subprocess.run([sys.executable, "-m", "kexp.app.main", "sim.realtime=maybe", f"hydra.run.dir={tmp_path}"],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("kexp: error: sim.realtime: Value 'maybe' is not a valid bool")
