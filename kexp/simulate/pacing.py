@@ -11,7 +11,7 @@ than n·Δ in wall-clock time, by the misses' lateness.  The time the logging ca
 counted in the next step's budget (it starts late by that much), so no wall-clock time goes unaccounted.
 
 Waiting: ``time.sleep`` until ``SPIN_S`` before the wake-up time, then polling ``time.perf_counter``: on a
-loaded 2-core machine the median |period − Δ| at Δ = 10 ms was 10–16 µs with ``time.sleep`` alone and 4–8 µs
+loaded 2-core machine the median |period − Δ| at Δ = 10 ms was 9–16 µs with ``time.sleep`` alone and 3–8 µs
 with the 1 ms busy-wait (benchmarks/realtime_jitter.py); the p99, ~4 ms there, is the machine's preemption,
 which no wait removes (the miss count is for that).  The busy-wait costs up to ``SPIN_S`` of CPU per step.
 """
