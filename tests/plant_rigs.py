@@ -71,3 +71,25 @@ class LinearRig:
     def step(self, u):
         self.x = self.Ad @ self.x + self.Bd @ np.asarray(u, dtype=float)
         return self.x
+
+
+class SleepyRig(VdpRig):
+    """VdpRig whose step takes wall-clock time, as a rig's driver does: it sleeps ``sleep`` s every step, and
+    ``overrun`` s instead at the steps in ``at`` (counted from 0 after the last reset): the real-time tests' plant
+    (a step that overruns its deadline)."""
+
+    def __init__(self, sleep=0.0, overrun=0.0, at=(), **kw):
+        super().__init__(**kw)
+        self.sleep, self.overrun, self.at, self.k = sleep, overrun, frozenset(at), 0
+
+    def reset(self, x0):
+        super().reset(x0)
+        self.k = 0
+
+    def step(self, u):
+        import time
+        pause = self.overrun if self.k in self.at else self.sleep
+        self.k += 1
+        if pause > 0:
+            time.sleep(pause)
+        return super().step(u)

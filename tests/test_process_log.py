@@ -92,7 +92,8 @@ def test_odd_values_keep_their_bytes(tmp_path, run):
     back = [rec for rec, _ in unpack_steps(kind, data)]
     assert step_messages(back) == step_messages([rec for rec, _ in odd])
     assert type(back[0].V) is np.float32 and type(back[0].binds) is np.bool_ and back[0].u.dtype == np.float32
-    assert [type(c) for c in pickle.loads(data)[1]] == [tuple, tuple, list, tuple, tuple]   # u, x stacked; z list
+    # u, x stacked; z a list; x_meas, w, late, miss all None: ()
+    assert [type(c) for c in pickle.loads(data)[1]] == [tuple, tuple, list, tuple, tuple, tuple, tuple]
     kw = dict(prediction_every=10, flush_every=0.5)
     sync = _write(RunLogger(tmp_path / "sync.mcap", **kw), run, odd)
     child = _write(ProcessRunLogger(tmp_path / "proc.mcap", **kw), run, odd)
@@ -110,7 +111,7 @@ def test_a_column_of_mixed_shapes_or_dtypes_takes_pickle(run, field, change):
     odd = recs[:3] + [replace(recs[3], **{field: change(getattr(recs[3], field))})] + recs[4:]
     kind, data = pack_steps(odd)
     columns = pickle.loads(data)[1]
-    assert [type(c) is list for c in columns] == [f == field for f in ("u", "x", "z", "x_meas", "w")]
+    assert [type(c) is list for c in columns] == [f == field for f in ("u", "x", "z", "x_meas", "w", "late", "miss")]
     back = [rec for rec, _ in unpack_steps(kind, data)]
     assert getattr(back[3], field).shape == getattr(odd[3], field).shape
     assert step_messages(back) == step_messages(odd)

@@ -7,6 +7,7 @@ Headless: the recording goes straight to a file (no viewer, no network, no spawn
 Entities
     states/x{i}, input/u{i}, lyapunov/{V, Vdot, r, r_hat}          time series from /step (+ the /clf levels)
     constraints/{active, binds, slack, fallback}, timing/solve_time_ms   time series from /step, /timing
+    timing/{late_ms, miss}                                        a paced run's (sim.realtime) lateness, misses
     phase/{closed_loop, open_loop, start, equilibrium, omega_r, omega_r_hat}   static (n = 2 only)
     phase/state, phase/prediction                                 at their step time: scrubbing shows the plan
     eigenvalues/{lambda, axes}                                    the model's continuous eigenvalues (complex plane)
@@ -162,9 +163,17 @@ def _log_steps(rec, rr, log: RunLog, names: list[str]) -> dict:
     timing = log.channels.get("/timing", [])
     if timing:
         msgs = [m for _, m in timing]
-        _series(rec, rr, "timing/solve_time_ms", "solve time [ms]", _BROWN,
-                _time_columns(rr, [t for t, _ in timing], [m.get("k") for m in msgs]),
+        times = _time_columns(rr, [t for t, _ in timing], [m.get("k") for m in msgs])
+        _series(rec, rr, "timing/solve_time_ms", "solve time [ms]", _BROWN, times,
                 [_f(m.get("solve_time")) * 1e3 for m in msgs])
+        # a paced run's (sim.realtime): each step's lateness (end − deadline; > 0 a miss) and its misses
+        if any("late" in m for m in msgs):
+            late = [_f(m.get("late")) for m in msgs]
+            _series(rec, rr, "timing/late_ms", "lateness [ms] (> 0: missed Δ)", _RED, times, np.asarray(late) * 1e3)
+            _series(rec, rr, "timing/miss", "deadline miss", _ORANGE, times,
+                    [float(bool(m.get("miss"))) if "miss" in m else np.nan for m in msgs], step=True)
+            info["realtime"] = {"steps": len(msgs), "misses": sum(bool(m.get("miss")) for m in msgs),
+                                "late_max": float(np.nanmax(late)) if np.any(np.isfinite(late)) else None}
     return info
 
 
@@ -303,6 +312,7 @@ def render(mcap_path: str | Path, rrd_path: str | Path | None = None) -> Path:
     n = max((len(m.get("x") or []) for _, m in steps), default=0)
     blueprint = default_blueprint(rrb, has_phase=n == 2, has_eig=bool(model.get("eigenvalues_re")),
                            has_timing=bool(log.channels.get("/timing")),
+                           has_realtime=any("late" in m for _, m in log.channels.get("/timing", [])),
                            phase_bounds=_phase_bounds(log) if n == 2 else None)
 
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=_recording_id(log))

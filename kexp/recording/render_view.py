@@ -17,6 +17,15 @@ def _fmt(v: Any, spec: str = ".4g") -> str:
     return str(v)
 
 
+def _realtime_rows(rt: dict | None) -> list[str]:
+    """The summary's row for a paced run (sim.realtime): its deadline misses and largest lateness, from /timing."""
+    if not rt:
+        return []
+    late = rt.get("late_max")
+    return [f"| real time (sim.realtime) | {rt['misses']} deadline miss(es) in {rt['steps']} steps, largest "
+            f"lateness {'—' if late is None else format(late * 1e3, '.3g') + ' ms'} |"]
+
+
 def summary_markdown(log: RunLog, info: dict) -> str:
     """The summary document: the run's verdict, metrics, CLF, model and log, as a markdown table (``info``: what
     the steps' logging counted, e.g. ``steps``)."""
@@ -49,6 +58,7 @@ def summary_markdown(log: RunLog, info: dict) -> str:
               f"| model | k = {_fmt(model.get('k'))}, n = {_fmt(model.get('n'))}, m = {_fmt(model.get('m'))}, "
               f"Δ = {_fmt(model.get('dt'))} s |",
               f"| steps logged | {info['steps']} |",
+              *_realtime_rows(info.get("realtime")),
               f"| config hash | `{_fmt(cfg.get('config_hash'))}` |",
               f"| log | `{log.path.name}` |"]
     if summary.get("message"):
@@ -56,10 +66,12 @@ def summary_markdown(log: RunLog, info: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def default_blueprint(rrb, *, has_phase: bool, has_eig: bool, has_timing: bool, phase_bounds=None):
+def default_blueprint(rrb, *, has_phase: bool, has_eig: bool, has_timing: bool, phase_bounds=None,
+                      has_realtime: bool = False):
     """The viewer's layout (``rrb``: ``rerun.blueprint``): the time series on the left (states, input, V and V̇,
-    constraints and solve time), tabs on the right (phase portrait framed by ``phase_bounds`` and eigenvalues where
-    there are any, the summary, the config), the time panel on ``sim_time``."""
+    constraints and solve time, and a paced run's lateness and misses with ``has_realtime``), tabs on the right
+    (phase portrait framed by ``phase_bounds`` and eigenvalues where there are any, the summary, the config), the
+    time panel on ``sim_time``."""
     left = [rrb.TimeSeriesView(origin="/states", name="states x(t)"),
             rrb.TimeSeriesView(origin="/input", name="input u(t)"),
             rrb.Horizontal(rrb.TimeSeriesView(origin="/lyapunov", contents=["/lyapunov/V", "/lyapunov/r",
@@ -67,7 +79,11 @@ def default_blueprint(rrb, *, has_phase: bool, has_eig: bool, has_timing: bool, 
                            rrb.TimeSeriesView(origin="/lyapunov", contents="/lyapunov/Vdot", name="V̇(t)"),
                            name="V / V̇")]
     bottom = [rrb.TimeSeriesView(origin="/constraints", name="constraints (active, binds, slack)")]
-    if has_timing:
+    if has_timing and has_realtime:
+        bottom += [rrb.TimeSeriesView(origin="/timing", contents="/timing/solve_time_ms", name="solve time [ms]"),
+                   rrb.TimeSeriesView(origin="/timing", contents=["/timing/late_ms", "/timing/miss"],
+                                      name="lateness [ms] and misses (sim.realtime)")]
+    elif has_timing:
         bottom.append(rrb.TimeSeriesView(origin="/timing", name="solve time [ms]"))
     left.append(rrb.Horizontal(*bottom, name="constraints / solve time"))
     right = []

@@ -14,7 +14,7 @@ import numpy as np
 SCALARS = ("k", "t", "V", "Vdot", "active", "binds", "fallback", "iterations", "qp_iterations", "qp_status",
            "reason", "region", "slack", "status", "solve_time")
 ARRAYS = ("u", "x", "z")
-OPTIONAL = ("x_meas", "w")      # read with getattr(rec, name, None), as steps.step_payload does
+OPTIONAL = ("x_meas", "w", "late", "miss")   # read with getattr(rec, name, None), as steps.step_payload does
 FIELDS = SCALARS + ARRAYS + OPTIONAL
 KIND = b"S"                     # the frame kind of a batch
 _scalars = attrgetter(*SCALARS)

@@ -38,8 +38,13 @@ def step_payload(rec) -> dict:
 
 
 def timing_payload(rec) -> dict:
-    """The /timing message of a step record (wall-clock: the diff ignores it by default), keys in sorted order."""
-    return {"k": int(rec.k), "solve_time": float(rec.solve_time), "t": float(rec.t)}
+    """The /timing message of a step record (wall-clock: the diff ignores it by default), keys in sorted order;
+    a paced run's (``sim.realtime``) also has the step's lateness ``late`` (s) and ``miss``."""
+    late = getattr(rec, "late", None)
+    if late is None:
+        return {"k": int(rec.k), "solve_time": float(rec.solve_time), "t": float(rec.t)}
+    return {"k": int(rec.k), "late": float(late), "miss": bool(rec.miss), "solve_time": float(rec.solve_time),
+            "t": float(rec.t)}
 
 
 def prediction_payload(rec, Z: np.ndarray, model) -> dict:

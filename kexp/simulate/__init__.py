@@ -1,3 +1,5 @@
 from .closed_loop import Disturbance, RunMetrics, RunResult, SimConfig, StepRecord, closed_loop, run_cost
+from .pacing import Pacer, RealtimeSummary
 
-__all__ = ["Disturbance", "RunMetrics", "RunResult", "SimConfig", "StepRecord", "closed_loop", "run_cost"]
+__all__ = ["Disturbance", "Pacer", "RealtimeSummary", "RunMetrics", "RunResult", "SimConfig", "StepRecord",
+           "closed_loop", "run_cost"]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -20,6 +20,7 @@ import numpy as np
 from ..data.integrate import IntegrationFailure, IntegratorOptions, integrate
 from ..data.noise import DISTURBANCE, MEASUREMENT_NOISE, NoiseConfig, _check_std, _std_active, _std_vector, noise_rng
 from ..errors import ConfigError, require_number, require_seed, require_whole_steps
+from .pacing import Pacer, RealtimeSummary
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,8 @@ class SimConfig:
     the reported cost, ``diverge_bound`` the ‖x − x_eq‖ where a run stops as diverged, ``integrator`` the ODE
     solver options of each step, ``noise`` the measurement noise on what the controller sees (relative: a
     fraction of the data's RMS per state, passed to :func:`closed_loop` as ``noise_scale``), ``disturbance`` the
-    process disturbance on the input channel.  Raises :class:`~kexp.errors.ConfigError` for values outside those
+    process disturbance on the input channel, ``realtime`` true to hold each step to wall-clock Δ
+    (:mod:`kexp.simulate.pacing`; off by default).  Raises :class:`~kexp.errors.ConfigError` for values outside those
     ranges."""
 
     T: float = 10.0
@@ -65,6 +67,7 @@ class SimConfig:
     integrator: IntegratorOptions = field(default_factory=lambda: IntegratorOptions(batch=1))
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     disturbance: Disturbance = field(default_factory=Disturbance)
+    realtime: bool = False       # true: each step held to wall-clock Δ, its lateness recorded (kexp.simulate.pacing)
 
     def __post_init__(self):
         for key in ("T", "dt", "tol", "r", "diverge_bound"):
@@ -81,6 +84,8 @@ class SimConfig:
             raise ConfigError(f"sim.diverge_bound={self.diverge_bound}: use a distance > 0 (inf: never stop)")
         if not (math.isfinite(self.r) and self.r >= 0):
             raise ConfigError(f"sim.r={self.r}: use a finite number >= 0")
+        if not isinstance(self.realtime, bool):
+            raise ConfigError(f"sim.realtime={self.realtime!r}: use true or false")
 
     @property
     def n_steps(self) -> int:
@@ -91,7 +96,8 @@ class SimConfig:
 class StepRecord:
     """One control step Δ (all fields logged): ``x`` the true state, ``x_meas`` what the controller saw (x plus
     measurement noise), ``z`` = Ψ(x_meas) − Ψ(x_eq) and V, V̇ at that z, ``u`` the controller's input, ``w`` the
-    process disturbance added to it over the step."""
+    process disturbance added to it over the step; with ``sim.realtime``, ``late`` the step's lateness (s, end of
+    its work − its deadline; negative: time to spare) and ``miss`` (late > 0), else None."""
 
     k: int
     t: float
@@ -113,6 +119,8 @@ class StepRecord:
     reason: str
     x_meas: np.ndarray | None = None   # None: equal to x
     w: np.ndarray | None = None        # None: no disturbance
+    late: float | None = None          # None: not paced (sim.realtime=false)
+    miss: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -146,7 +154,8 @@ class RunResult:
     ('' when completed), ``t`` (K+1,), ``x`` (K+1, n), ``u`` (K, m) for the K steps run (fewer than n_steps if
     diverged), one :class:`StepRecord` per step in ``records``, the :class:`RunMetrics`, and ``open_loop``
     (n_steps+1, n) the unforced trajectory from x0 when asked for (None otherwise, or if it failed), and
-    ``integrate_s`` the wall-clock seconds spent integrating the plant (a job's time breakdown)."""
+    ``integrate_s`` the wall-clock seconds spent integrating the plant (a job's time breakdown), ``realtime`` how a
+    paced run kept its schedule (:class:`~kexp.simulate.pacing.RealtimeSummary`; None when not paced)."""
 
     status: str              # 'completed' or 'diverged'
     message: str
@@ -157,6 +166,7 @@ class RunResult:
     metrics: RunMetrics
     open_loop: np.ndarray | None = None
     integrate_s: float = 0.0
+    realtime: RealtimeSummary | None = None
 
 
 def run_cost(t, x, u, x_eq, r) -> float:
@@ -219,8 +229,10 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     ``system`` gives x_eq and n, m.  ``model`` lifts the measured x to
     z for controllers that need it and for the records; ``lyap`` (QuadraticLyapunov) gives V and V̇ in the
     records.  ``on_step(record, control_step)`` is called after each control decision, before the step is
-    integrated (logging, progress).  ``noise_scale`` (n,): the per-state scale of a relative ``config.noise``
-    (the data's RMS, :func:`kexp.data.noise.data_rms`); ConfigError if a relative noise has none."""
+    integrated (logging, progress); with ``config.realtime`` after the plant's step instead, with the step's
+    lateness in the record (also for a step whose plant step raised).  ``noise_scale`` (n,): the per-state
+    scale of a relative ``config.noise`` (the data's RMS, :func:`kexp.data.noise.data_rms`); ConfigError if a
+    relative noise has none."""
     try:
         x0 = np.asarray(x0, dtype=float)
     except (TypeError, ValueError):
@@ -256,6 +268,9 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     plant.reset(x0)
     plant_seconds = 0.0
     last = n_steps
+    pacer = Pacer(config.dt) if config.realtime else None
+    if pacer is not None:
+        pacer.start()
     for k in range(n_steps):
         x_meas = xs[k] + sigma_v * rng_v.standard_normal(system.n) if sigma_v is not None else xs[k].copy()
         z = model.lift(x_meas) if model is not None else np.zeros(0)
@@ -278,7 +293,7 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
                          qp_iterations=step.qp_iterations, solve_time=step.solve_time,
                          fallback=step.fallback, reason=step.reason, x_meas=x_meas, w=w)
         records.append(rec)
-        if on_step is not None:
+        if on_step is not None and pacer is None:
             on_step(rec, step)
         try:
             u_plant = u if w is None else u + w
@@ -288,18 +303,27 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
         except IntegrationFailure as exc:
             status, message, last = "diverged", f"integration failed at t={t[k]:.3f}: {exc}", k
             break
+        finally:
+            if pacer is not None:   # the step's work ended: its lateness goes with its record to on_step
+                late, miss = pacer.stamp()
+                rec = records[-1] = replace(rec, late=late, miss=miss)
+                if on_step is not None:
+                    on_step(rec, step)
         d = nxt - x_eq
         if not math.sqrt(d @ d) <= config.diverge_bound:    # ‖·‖ as np.linalg.norm has it; NaN and inf fail too
             status, message, last = "diverged", f"state left ‖x‖ ≤ {config.diverge_bound:g} at t={t[k + 1]:.3f}", k
             break
         xs[k + 1] = nxt
+        if pacer is not None:
+            pacer.wait()
     t, xs, us = t[:last + 1], xs[:last + 1], us[:last]
     ol = None
     if open_loop:
         ol = _open_loop(system, plant, x0, n_steps, config.dt)
     return RunResult(status=status, message=message, t=t, x=xs, u=us, records=tuple(records),
                      metrics=_metrics(t, xs, us, records, x_eq, config), open_loop=ol,
-                     integrate_s=getattr(plant, "seconds", plant_seconds))
+                     integrate_s=getattr(plant, "seconds", plant_seconds),
+                     realtime=pacer.summary() if pacer is not None else None)
 
 
 def _check_plant(plant, system, dt: float) -> None:
