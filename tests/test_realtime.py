@@ -256,3 +256,30 @@ def test_cli_refuses_a_realtime_that_is_not_a_bool_in_one_line(tmp_path):
     assert proc.returncode == 2
     (line,) = proc.stderr.strip().splitlines()
     assert line.startswith("kexp: error: sim.realtime: Value 'maybe' is not a valid bool")
+
+
+def test_the_app_summarises_a_paced_run(tmp_path):
+    """(with the experiment.py change) summary.json and /run_info's timing have the run's realtime block; an
+    unpaced config keeps its hash (no sim.realtime in the logged config)."""
+    from hydra import compose, initialize_config_dir
+    from kexp.app.conf import CONF_DIR
+    from kexp.app.experiment import config_dict, config_hash, run
+    dt = 0.01
+    small = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
+             "controller.lmpc.blocks=null", "clf.grid=11", "logging.rrd=false", "logging.progress=false",
+             "cache.enabled=false", "sim.T=0.3", "sim.open_loop=false"]
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        plain = compose(config_name="config", overrides=small)
+        off = compose(config_name="config", overrides=small + ["sim.realtime=false"])
+        cfg = compose(config_name="config", overrides=small + [
+            "sim.realtime=true", "plant=python", "plant.target=plant_rigs:SleepyRig",
+            f"+plant.params.overrun={3 * dt}", "+plant.params.at=[4]"])
+    assert "realtime" not in config_dict(plain)["sim"] and config_hash(config_dict(off)) == config_hash(
+        config_dict(plain))
+    lines = []
+    metrics = run(cfg, tmp_path, echo=lines.append)
+    rt = metrics["realtime"]
+    assert rt["steps"] == 30 and rt["misses"] >= 1 and rt["late_max"] >= 2 * dt and rt["wall_s"] >= 32 * dt
+    assert read_log(tmp_path / "run.mcap").one("/run_info")["timing"]["realtime"] == rt
+    (line,) = [s for s in lines if s.startswith("real time: ")]
+    assert f"deadline miss(es) in 30 steps of Δ = 10 ms" in line

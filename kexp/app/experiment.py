@@ -80,6 +80,8 @@ def config_dict(cfg: Any) -> dict:
         del out["controller"]["linearisation"]   # unset (auto): the config and its hash as before the key existed
     if out.get("plant") == _DEFAULT_PLANT:   # kexp's integrator: the config (and its hash) as before plants existed
         del out["plant"]
+    if isinstance(out.get("sim"), dict) and out["sim"].get("realtime") is False:   # unpaced: the hash as before
+        out["sim"] = {k: v for k, v in out["sim"].items() if k != "realtime"}
     return out
 
 
@@ -308,8 +310,9 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
         t_end = float(result.t[-1])
         logger.log_summary(t_end, result.status, result.message, deterministic, completed=True,
                            perturbation=perturbation)
-        logger.log_run_info(t_end, versions, {**timing, "wall_time_s": time.perf_counter() - t0}, lock=lock,
-                            plant=plant_info)
+        paced = {"realtime": result.realtime.to_dict()} if result.realtime is not None else {}   # sim.realtime
+        logger.log_run_info(t_end, versions, {**timing, **paced, "wall_time_s": time.perf_counter() - t0},
+                            lock=lock, plant=plant_info)
         with writing(logger.path):
             logger.close()
         files["mcap"] = logger.path.name
@@ -335,6 +338,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
         "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
         "files": files,
     }
+    if result.realtime is not None:   # sim.realtime: how the run kept its schedule (wall-clock numbers)
+        metrics["realtime"] = result.realtime.to_dict()
     phases["closed_loop"] = {"control_s": control_s, "integrate_s": result.integrate_s,
                              "logging_s": log_seconds[0]}
     metrics["timing"] = phases
@@ -357,6 +362,10 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "
          f"max {m.solve_time_max * 1e3:.2f} ms")
+    if result.realtime is not None:
+        rt = result.realtime
+        echo(f"real time: {rt.misses} deadline miss(es) in {rt.steps} steps of Δ = {rt.dt * 1e3:g} ms; lateness max "
+             f"{rt.late_max * 1e3:.2f} ms (step {rt.late_max_k}), p99 {rt.late_p99 * 1e3:.2f} ms (< 0: time to spare)")
     echo(f"files: {out_dir.resolve()} ({', '.join(files.values())})")
     return metrics
 
