@@ -169,3 +169,36 @@ def test_short_closed_loop_from_a_small_angle(cart):
     res = closed_loop(system, ctrl, np.array([0.0, 0.1, 0.0, 0.0]), SimConfig(T=10.0), model=model, lyap=clf.lyap)
     assert res.metrics.success and res.metrics.final_error < 1e-2 and res.metrics.fallbacks == 0
     assert abs(res.x[-1, 1]) < 1e-3
+
+
+def test_balanced_block_maps_are_the_van_loan_block(cart):
+    """The cart-pole model's generators are far from normal (‖M‖₁ ~ 170 at |u| = 5, spectral radius ~0.1), so the
+    LMPC balances them (diag of powers of two, exact): the block maps and their derivatives equal the Van Loan
+    block's exponential (scipy) to 1e-13 of their size, as the unbalanced ones do; a model that is already
+    balanced is left as it is (None)."""
+    import scipy.linalg as sla
+    from kexp.control.condense import balancing, block_maps_expm
+    from kexp.control.kernels import _augmented, _directions
+    _, model, _, _, _ = cart
+    lam, B, b = (np.ascontiguousarray(a) for a in (model.Lambda, model.B, model.b))
+    bal = balancing(lam, B, b, model.dt, 5.0)
+    assert bal is not None
+    lam_b, B_b, b_b, ratio = bal
+    assert np.all(np.exp2(np.round(np.log2(ratio))) == ratio)
+    U = np.array([[-5.0], [-1.3], [0.0], [2.2], [5.0]])
+    n = model.k + 1
+    E, L = np.zeros((5, n, n)), np.zeros((5, 1, n, n))
+    block_maps_expm(lam_b, B_b, b_b, model.dt, U, E, L)
+    E *= ratio
+    L *= ratio
+    E0, L0 = np.zeros_like(E), np.zeros_like(L)
+    block_maps_expm(lam, B, b, model.dt, U, E0, L0)
+    D = _directions(B, b, model.dt)[0]
+    for i, u in enumerate(U):
+        M = _augmented(lam, B, b, u, model.dt)
+        ref = sla.expm(np.block([[M, D], [np.zeros((n, n)), M]]))
+        for got in ((E[i], L[i, 0]), (E0[i], L0[i, 0])):
+            assert np.abs(got[0] - ref[:n, :n]).max() <= 1e-13 * np.abs(ref[:n, :n]).max()
+            assert np.abs(got[1] - ref[:n, n:]).max() <= 1e-13 * np.abs(ref[:n, n:]).max()
+    diag = np.diag(np.r_[-1.0, -2.0, -3.0])
+    assert balancing(diag, 0.1 * np.eye(3)[None], np.ones((1, 3)), 0.01, 5.0) is None
