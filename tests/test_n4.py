@@ -166,6 +166,7 @@ def test_short_closed_loop_from_a_small_angle(cart):
     from kexp.simulate import SimConfig, closed_loop
     system, model, clf, spec, _ = cart
     ctrl = build_controller(spec, system, model, clf)
+    assert ctrl.zoh is None and ctrl._bal is not None   # its block maps: the balanced exponential
     res = closed_loop(system, ctrl, np.array([0.0, 0.1, 0.0, 0.0]), SimConfig(T=10.0), model=model, lyap=clf.lyap)
     assert res.metrics.success and res.metrics.final_error < 1e-2 and res.metrics.fallbacks == 0
     assert abs(res.x[-1, 1]) < 1e-3
