@@ -14,7 +14,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..errors import ClfError, ConfigError, require_number
-from .certificate import CertificateReport, check_certificate, check_region, check_region_config
+from .certificate import LONG_K, CertificateReport, check_certificate, check_region, check_region_config
 from .lyapunov import QuadraticLyapunov
 from .riccati import model_lqr
 
@@ -175,27 +175,68 @@ def solve_lqr_x(model, config: ClfConfig) -> tuple[np.ndarray, str, float, float
 
 @threadpool_limits.wrap(limits=1)   # one BLAS thread: P must not depend on the machine's core count
 def synthesize_clf(model, config: ClfConfig = ClfConfig(), *, law: str = "sontag", u_min=-5.0, u_max=5.0,
-                   law_params: dict | None = None) -> Clf:
+                   law_params: dict | None = None, progress=None) -> Clf:
     """Solve the SDP (or the Riccati equation, ``method='lqr_x'``), then check the certificate of V = zᵀPz for
     the explicit law ``law`` with bounds.  Raises :class:`~kexp.errors.ConfigError` first (before solving) for a
     ``config`` that is not a ClfConfig, a region that does not fit the model's n or a grid over the memory budget
-    (:func:`~kexp.clf.certificate.check_region`), and :class:`~kexp.errors.ClfError` when the solve fails."""
+    (:func:`~kexp.clf.certificate.check_region`) or an SDP over the memory budget (:func:`check_sdp_budget`), and
+    :class:`~kexp.errors.ClfError` when the solve fails.  ``progress`` (a callable taking one line, e.g. the kexp
+    command's echo, or None) is told when a stage starts that takes long: the SDP and the certificate of a model
+    with k ≥ :data:`~kexp.clf.certificate.LONG_K`."""
     _check_inputs(model, config)
+    check_sdp_budget(config, model.k)
+    if progress is not None and config.method == "sdp" and model.k >= LONG_K:
+        progress(sdp_announcement(model.k, config.solver))
     P, status, obj, sigma = (solve_sdp if config.method == "sdp" else solve_lqr_x)(model, config)
     return clf_from_P(model, P, config, law=law, u_min=u_min, u_max=u_max, law_params=law_params,
-                      status=status, objective=obj, sigma=sigma)
+                      status=status, objective=obj, sigma=sigma, progress=progress)
+
+
+SDP_BYTES_PER_ENTRY = 200   # CLARABEL's peak memory per (k(k+1)/2)² (measured: 1.15 GB at k = 69, ≥ 12.3 GB at 125)
+
+
+def sdp_bytes(k: int) -> int:
+    """An estimate of the memory CLARABEL holds for the SDP of eq. 40 on k eigen-coordinates: its KKT system is
+    dense in the k(k+1)/2 entries of each LMI, 200 bytes per (k(k+1)/2)² (peak RSS above the interpreter's, one
+    BLAS thread: 0.06 GB at k = 34, 1.15 GB at k = 69, 12.3 GB and growing when stopped after 7 min at k = 125)."""
+    return int(SDP_BYTES_PER_ENTRY * (k * (k + 1) // 2) ** 2)
+
+
+def check_sdp_budget(config: ClfConfig, k: int) -> None:
+    """Refuse, before anything long runs, an SDP (``clf.method=sdp``) on ``k`` eigen-coordinates whose estimated
+    memory (:func:`sdp_bytes`) exceeds the budget (``$KEXP_MEMORY_BUDGET_GB``, 4 GB by default): ConfigError
+    naming clf.method and what to change.  The default budget admits k ≤ 94."""
+    from ..control.memory import memory_budget
+    if config.method != "sdp":
+        return
+    need, budget = sdp_bytes(k), memory_budget()
+    if need > budget:
+        raise ConfigError(f"clf.method=sdp on k={k} eigen-coordinates needs about {need / 1e9:.3g} GB for the SDP "
+                          f"(its KKT system is dense in k(k+1)/2 = {k * (k + 1) // 2} unknowns; measured 2 min and "
+                          f"1.3 GB at k=69), over the budget of {memory_budget() / 1e9:.3g} GB "
+                          "(KEXP_MEMORY_BUDGET_GB): use clf.method=lqr_x (the model's Riccati equation, "
+                          "milliseconds) or a lower dictionary.degree")
+
+
+def sdp_announcement(k: int, solver: str) -> str:
+    """The line printed before the SDP of a large model: its size and what it costs (with an interior point its
+    time grows about as k⁵: 1.8 s at k = 34 and 2 min at k = 69 measured on this project's loaded 2-core
+    machine)."""
+    return (f"CLF: SDP (eq. 40) on {k} eigen-coordinates ({k * (k + 1) // 2} unknowns, three {k}×{k} LMIs, "
+            f"{solver}, about {sdp_bytes(k) / 1e9:.2g} GB)… its time grows about as k⁵ (2 min at k = 69); "
+            "clf.method=lqr_x takes milliseconds")
 
 
 def clf_from_P(model, P, config: ClfConfig = ClfConfig(), *, law="sontag", u_min=-5.0, u_max=5.0,
-               law_params=None, status="given", objective=float("nan"), sigma=float("nan")) -> Clf:
+               law_params=None, status="given", objective=float("nan"), sigma=float("nan"), progress=None) -> Clf:
     """Wrap a given P (e.g. from another synthesis) with its certificate report.  Raises
     :class:`~kexp.errors.ConfigError` for a P that is not a finite symmetric positive definite (k, k) matrix (and
-    as :func:`synthesize_clf` for the model, config, law and bounds)."""
+    as :func:`synthesize_clf` for the model, config, law and bounds).  ``progress``: as for synthesize_clf."""
     from ..control.laws import make_law
     _check_inputs(model, config)
     lyap = QuadraticLyapunov.from_model(model, P)
     h = make_law(law, lyap, u_min, u_max, model=model, weights=(config.q_x, config.r_u), **(law_params or {}))
-    report = check_certificate(model, lyap, h, config)
+    report = check_certificate(model, lyap, h, config, progress=progress)
     return Clf(P=lyap.P, lyap=lyap, status=status, solver=config.solver, objective=objective, sigma=sigma,
                certificate=report, config=config)
 

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import ConfigError, require_number
 from .blocking import block_of_step, block_sizes
 from .checks import check_lmpc_config, check_model_parts
-from .condense import block_maps_expm, block_maps_poly, condense, linearised_vmax, rows_hold
+from .condense import balancing, block_maps_expm, block_maps_poly, condense, linearised_vmax, rows_hold
 from .kernels import rollout, rollout_poly
 from .memory import check_memory
 from .qp import SOLVERS, DenseQp
@@ -157,8 +157,10 @@ class Lmpc:
         self.x_u = np.concatenate([np.tile(self.u_max, self.nb), [np.inf]])
         # one input: the exact ZOH map as a polynomial in u on the input range (kexp.control.zoh_poly), so the map
         # and its derivative cost a few matrix additions per move block; else (or out of range) the exponential
-        self.zoh = zoh_polynomial(self.lam, self.B, self.b, model.dt,
-                                  float(max(np.max(np.abs(self.u_min)), np.max(np.abs(self.u_max)))))
+        rho = float(max(np.max(np.abs(self.u_min)), np.max(np.abs(self.u_max))))
+        self.zoh = zoh_polynomial(self.lam, self.B, self.b, model.dt, rho)
+        # else the exponential, of the balanced generators where that saves a halving (kexp.control.condense)
+        self._bal = balancing(self.lam, self.B, self.b, model.dt, rho) if self.zoh is None else None
         self._buffers()
         self.reset()
         # compile (or load from numba's cache) now, not inside the first control step: the condensing, and the
@@ -222,8 +224,13 @@ class Lmpc:
         if self.zoh is not None:
             block_maps_poly(self.zoh.coef, self.zoh.norms, self.zoh.rho, self.lam, self.B, self.b, self.model.dt,
                             Ubar, self._E, self._L)
-        else:
+        elif self._bal is None:
             block_maps_expm(self.lam, self.B, self.b, self.model.dt, Ubar, self._E, self._L)
+        else:                                   # expm(S⁻¹MS) = S⁻¹expm(M)S, S = diag(powers of two): exact
+            lam_b, B_b, b_b, ratio = self._bal
+            block_maps_expm(lam_b, B_b, b_b, self.model.dt, Ubar, self._E, self._L)
+            self._E *= ratio
+            self._L *= ratio
 
     def _condense(self, z0, ub, want_rows: bool) -> None:
         """The rollout, sensitivities, H, g and (with ``want_rows``) the (21e) rows at the guess ub = vec(U), from the
