@@ -25,6 +25,7 @@ from ..recording.process_log import ProcessRunLogger, prestart as prestart_write
 from ..recording.writer import RunLogger
 from ..simulate import closed_loop
 from ..clf import load_clf, save_clf, synthesize_clf
+from ..clf.synthesis import check_sdp_budget
 from ..identify import FORMAT_VERSION, KoopmanBilinearModel
 from .budget import check_run_size
 from .build import (build_clf, build_controller, build_controller_spec, build_data, build_dictionary,
@@ -197,6 +198,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     else:
         check_file_data(file_data, ident_cfg, k_max)
     check_memory_budget(spec, k_max, system.m)
+    check_sdp_budget(clf_cfg, k_max)   # an SDP CLF over the memory budget: refused before any data
     check_run_size(sim_cfg, system, k_max, sampler if file_data is None else None, data_cfg)
     summary_path = out_dir / "summary.json"
     create_exclusive(summary_path, json.dumps({"status": "running", "completed": False, "config_hash": chash},
@@ -248,7 +250,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     clf = cache.get_or_create(
         clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max),
         lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
-                               law_params=spec.law_params),
+                               law_params=spec.law_params, progress=echo),
         save_clf, lambda p: load_clf(p, model, clf_cfg))
     phase("clf_s")
     # the true-model baselines (LQR, NMPC oracle) know the plant they control, mismatch included
@@ -362,6 +364,10 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "
          f"max {m.solve_time_max * 1e3:.2f} ms")
+    if m.solve_time_median > sim_cfg.dt:   # the controller cannot keep up with the plant in real time
+        echo(f"warning: the median solve time {m.solve_time_median * 1e3:.2f} ms exceeds Δ = {sim_cfg.dt * 1e3:g} ms: "
+             "this controller could not run in real time at this Δ (fewer move blocks, a shorter horizon or a "
+             "lower dictionary degree; README: Four states)")
     if result.realtime is not None:
         rt = result.realtime
         echo(f"real time: {rt.misses} deadline miss(es) in {rt.steps} steps of Δ = {rt.dt * 1e3:g} ms; lateness max "
