@@ -5,9 +5,9 @@ For each initial state x0 this searches for an admissible input sequence that br
 ball ‖x(T) − x_eq‖ < sim.tol and holds it there, and writes ``<experiment>_ocp.csv`` with columns
 x0_1…x0_n, feasible, final_error, cost (J over [0, sim.T], kexp's cost: ∫‖x − x_eq‖² + r‖u‖² dt).
 
-    python results/plants_ocp.py gym_pendulum --low -0.6,-1.5 --high 0.6,1.5            # 100 x0, seed 42
-    python results/plants_ocp.py gym_inverted_pendulum --low -0.9,-0.9,0,0 --high 0.9,0.9,0,0 -n 100
-    python results/plants_ocp.py gym_pendulum --x0-csv results/plants/gym_pendulum_lqr.csv  # the x0 of a row
+    python results/plants_ocp.py gym_pendulum --low=-0.6,-1.5 --high=0.6,1.5           # 100 x0, seed 42
+    python results/plants_ocp.py gym_inverted_pendulum --low=-0.5,-0.6,0,0 --high=0.5,0.6,0,0 -n 100
+    python results/plants_ocp.py gym_pendulum --x0-csv ROW.csv        # the x0 of a results row instead
 
 The method, and why:
 - *Through the environment's own step* (kexp's gymnasium plant, the unwrapped env): no formula is trusted, the
@@ -20,8 +20,9 @@ The method, and why:
   smooth, c + w·tanh((·− c)/w) for the bounds c ± w (a hard clip has no gradient where it saturates, and a fall
   saturates the LQR for seconds); the inputs stay inside the bounds.  Plain single shooting over 3 s of an
   unstable plant (e^{λT} ≈ 1e5 for Pendulum-v1) is too ill-conditioned for a gradient method; with the feedback in
-  the loop the rollouts stay bounded and v = 0 is (nearly: the smooth sat) the LQR, so the search starts there.  The bounds |u| ≤ u_max hold by construction (sat), any input sequence is reachable (|v| ≤ 4·u_max
-  overrides the feedback).
+  the loop the rollouts stay bounded and v = 0 is (nearly: the smooth sat) the LQR, so the search starts there.
+  The bounds |u| ≤ u_max hold by construction (sat); any input sequence is reachable (|v| ≤ 4·u_max overrides
+  the feedback).
 - L-BFGS-B on J(v) over [0, horizon + 2 s] plus (‖x(end) − x_eq‖/tol)², forward-difference gradients (only the
   steps after a perturbed block are re-simulated); starts: v = 0, then (when that ends outside the ball) ±u_max
   over the first second; the best of these and of the plain saturated LQR (so the answer never costs more than
@@ -29,10 +30,14 @@ The method, and why:
   what the replay reached, so True is a constructive proof (an input sequence that does it, on the env), while
   False only says this search found none.
 
-Runtime (measured on the shared 2-core machine): Pendulum-v1 0.5-4 s per x0 (100 x0 in about 3 min);
-InvertedPendulum-v5 2-7 s per x0 the LQR already brings home, 10-70 s where it has to search (three starts):
-20 x0 of the box [-0.9, 0.9]² took 5.6 min.  A shorter search (--horizon 3 --block 5) is about twice as fast but
-missed one of the five savable x0 tried and found costlier inputs for the others.
+Runtime (measured on the shared 2-core machine, one core): Pendulum-v1 0.1-7 s per x0, 100 x0 in 3.8 min;
+InvertedPendulum-v5 2-8 s per x0 the LQR already brings home, 15-45 s where it has to search (three starts),
+100 x0 of x ∈ [-0.5, 0.5], θ ∈ [-0.6, 0.6] in 9.8 min.  A shorter search (--horizon 3 --block 5) is about twice
+as fast but missed one of five savable x0 tried and found costlier inputs for the others.
+
+Committed answers (results/plants/*.csv): the 100 x0 of each command above (seed 42): Pendulum-v1 100/100
+feasible (the LQR's 6 failures by a fall and a swing back, J ≈ 113), InvertedPendulum-v5 99/100 (6 of the LQR's 7
+failures, J 6-12, by inputs that ride the slider's stop).
 """
 from __future__ import annotations
 
