@@ -2,8 +2,10 @@
 """Could a failure be saved at all?  A long-horizon optimal-control problem through a Gymnasium plant's own step.
 
 For each initial state x0 this searches for an admissible input sequence that brings the plant into the success
-ball ‖x(T) − x_eq‖ < sim.tol and holds it there, and writes ``<experiment>_ocp.csv`` with columns
-x0_1…x0_n, feasible, final_error, cost (J over [0, sim.T], kexp's cost: ∫‖x − x_eq‖² + r‖u‖² dt).
+ball ‖x(T) − x_eq‖ < sim.tol and holds it there, and writes ``results/<experiment>_ocp.csv`` with columns
+x0_1…x0_n, feasible, final_error, cost (J over [0, sim.T], kexp's cost: ∫‖x − x_eq‖² + r‖u‖² dt): the file
+``kexp-results plants`` reads next to the rows ``<experiment>_<configuration>.csv`` (``--name`` for another
+system name).  The x0 are those of ``results/sweep_lib.sh x0_box LOW HIGH SEED N`` (or a row's, ``--x0-csv``).
 
     python results/plants_ocp.py gym_pendulum --low=-0.6,-1.5 --high=0.6,1.5           # 100 x0, seed 42
     python results/plants_ocp.py gym_inverted_pendulum --low=-0.5,-0.6,0,0 --high=0.5,0.6,0,0 -n 100
@@ -31,13 +33,13 @@ The method, and why:
   False only says this search found none.
 
 Runtime (measured on the shared 2-core machine, one core): Pendulum-v1 0.1-7 s per x0, 100 x0 in 3.8 min;
-InvertedPendulum-v5 2-8 s per x0 the LQR already brings home, 15-45 s where it has to search (three starts),
-100 x0 of x ∈ [-0.5, 0.5], θ ∈ [-0.6, 0.6] in 9.8 min.  A shorter search (--horizon 3 --block 5) is about twice
+InvertedPendulum-v5 2-8 s per x0 the LQR already brings home, 15-60 s where it has to search (three starts),
+100 x0 of x ∈ [-0.5, 0.5], θ ∈ [-0.6, 0.6] in 10.5 min.  A shorter search (--horizon 3 --block 5) is about twice
 as fast but missed one of five savable x0 tried and found costlier inputs for the others.
 
-Committed answers (results/plants/*.csv): the 100 x0 of each command above (seed 42): Pendulum-v1 100/100
-feasible (the LQR's 6 failures by a fall and a swing back, J ≈ 113), InvertedPendulum-v5 99/100 (6 of the LQR's 7
-failures, J 6-12, by inputs that ride the slider's stop).
+Committed answers (results/gym_*_ocp.csv), the 100 x0 of each command above: Pendulum-v1 100/100 feasible (the
+LQR's one failure by a fall and a swing back, J = 105), InvertedPendulum-v5 98/100 (10 of the LQR's 12 failures,
+J 4.8-27, by inputs that ride the slider's stop).
 """
 from __future__ import annotations
 
@@ -181,7 +183,8 @@ def x0_list(args, n: int):
     hi = np.array([float(v) for v in args.high.split(",")])
     if lo.size != n or hi.size != n:
         raise SystemExit(f"plants_ocp: --low/--high need {n} numbers (one per state)")
-    x = np.random.default_rng(args.seed).uniform(lo, hi, (args.n, n))
+    # the draw of results/sweep_lib.sh x0_box (kexp-results x0): state by state, so a row's x0 are these
+    x = np.random.default_rng(args.seed).uniform(lo[:, None], hi[:, None], (n, args.n)).T
     return np.where(hi > lo, x, lo)
 
 
@@ -190,13 +193,16 @@ def main(argv=None) -> int:
     ap.add_argument("experiment", help="a kexp experiment preset on a gymnasium plant, e.g. gym_pendulum")
     ap.add_argument("--low", help="the x0 box's lower corner, one number per state (comma-separated)")
     ap.add_argument("--high", help="the x0 box's upper corner")
-    ap.add_argument("-n", type=int, default=100, help="number of x0 drawn uniformly from the box (default 100)")
+    ap.add_argument("-n", type=int, default=100, help="number of x0 drawn uniformly from the box (default 100), "
+                                                      "as results/sweep_lib.sh x0_box LOW HIGH SEED N draws them")
     ap.add_argument("--seed", type=int, default=42)
     ap.add_argument("--x0-csv", help="take the x0 from this CSV's x0_1…x0_n columns instead (a results row)")
     ap.add_argument("--horizon", type=float, default=4.0, help="seconds of free feedforward (default 4)")
     ap.add_argument("--block", type=int, default=3, help="steps per feedforward block (default 3)")
     ap.add_argument("--max-iter", type=int, default=60, help="L-BFGS-B iterations per start (default 60)")
-    ap.add_argument("-o", "--out", default=str(ROOT / "results" / "plants"), help="folder of the CSV")
+    ap.add_argument("-o", "--out", default=str(ROOT / "results"), help="folder of the CSV (default results/)")
+    ap.add_argument("--name", help="the CSV's system name, <name>_ocp.csv, as the rows' <name>_<configuration>.csv "
+                                   "(default: the experiment's name)")
     args = ap.parse_args(argv)
     if not args.x0_csv and not (args.low and args.high):
         ap.error("give --low and --high (the x0 box) or --x0-csv")
@@ -212,7 +218,7 @@ def main(argv=None) -> int:
         X0 = x0_list(args, plant.n)
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        path = out / f"{args.experiment}_ocp.csv"
+        path = out / f"{args.name or args.experiment}_ocp.csv"
         rows = []
         for i, x0 in enumerate(X0):
             ok, err, cost, sec = solve(sh, x0, T, tol, args.horizon, args.block, args.max_iter)
