@@ -2,7 +2,7 @@
 """Could a failure be saved at all?  A long-horizon optimal-control problem through a Gymnasium plant's own step.
 
 For each initial state x0 this searches for an admissible input sequence that brings the plant into the success
-ball ‖x(T) − x_eq‖ < sim.tol and holds it there, and writes ``results/<experiment>_ocp.csv`` with columns
+ball ‖x(T) − x_eq‖ < sim.tol and holds it there, and writes ``results/plants/<experiment>_ocp.csv`` with columns
 x0_1…x0_n, feasible, final_error, cost (J over [0, sim.T], kexp's cost: ∫‖x − x_eq‖² + r‖u‖² dt): the file
 ``kexp-results plants`` reads next to the rows ``<experiment>_<configuration>.csv`` (``--name`` for another
 system name).  The x0 are those of ``results/sweep_lib.sh x0_box LOW HIGH SEED N`` (or a row's, ``--x0-csv``).
@@ -37,7 +37,7 @@ InvertedPendulum-v5 2-8 s per x0 the LQR already brings home, 15-60 s where it h
 100 x0 of x ∈ [-0.5, 0.5], θ ∈ [-0.6, 0.6] in 10.5 min.  A shorter search (--horizon 3 --block 5) is about twice
 as fast but missed one of five savable x0 tried and found costlier inputs for the others.
 
-Committed answers (results/gym_*_ocp.csv), the 100 x0 of each command above: Pendulum-v1 100/100 feasible (the
+Committed answers (results/plants/gym_*_ocp.csv), the 100 x0 of each command above: Pendulum-v1 100/100 feasible (the
 LQR's one failure by a fall and a swing back, J = 105), InvertedPendulum-v5 98/100 (10 of the LQR's 12 failures,
 J 4.8-27, by inputs that ride the slider's stop).
 """
@@ -200,7 +200,8 @@ def main(argv=None) -> int:
     ap.add_argument("--horizon", type=float, default=4.0, help="seconds of free feedforward (default 4)")
     ap.add_argument("--block", type=int, default=3, help="steps per feedforward block (default 3)")
     ap.add_argument("--max-iter", type=int, default=60, help="L-BFGS-B iterations per start (default 60)")
-    ap.add_argument("-o", "--out", default=str(ROOT / "results"), help="folder of the CSV (default results/)")
+    ap.add_argument("-o", "--out", default=str(ROOT / "results" / "plants"),
+                    help="folder of the CSV (default results/plants/)")
     ap.add_argument("--name", help="the CSV's system name, <name>_ocp.csv, as the rows' <name>_<configuration>.csv "
                                    "(default: the experiment's name)")
     args = ap.parse_args(argv)

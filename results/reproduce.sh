@@ -31,6 +31,7 @@ done
 script_of() {  # CSV -> the row script that made it
     case $1 in
         results/regions/*) echo results/regions.sh ;;
+        results/plants/*) echo results/plants.sh ;;
         results/robustness/*|results/*) echo results/robustness.sh ;;
         *) return 1 ;;
     esac

@@ -28,8 +28,10 @@ from ..errors import is_number
 from .aggregate import ReportError
 from .results import read_csv, x0_columns, x0_key
 
-GENERATORS = ((42, -1.0, 1.0, 100), (42, -2.0, 2.0, 100), (43, -2.0, 2.0, 300))
-"""(seed, low, high, n) of the x0 the row scripts sweep: results/robustness.sh, results/regions.sh and its --map.
+GENERATORS = ((42, -1.0, 1.0, 100), (42, -2.0, 2.0, 100), (43, -2.0, 2.0, 300),
+              (42, (-0.6, -1.5), (0.6, 1.5), 100), (42, (-0.5, -0.6, 0.0, 0.0), (0.5, 0.6, 0.0, 0.0), 100))
+"""(seed, low, high, n) of the x0 the row scripts sweep: results/robustness.sh, results/regions.sh and its --map,
+results/plants.sh (Pendulum-v1's and InvertedPendulum-v5's boxes).
 low and high are numbers (2 states) or one number per state (a box, :func:`generated_x0`): a plant row's box
 (results/sweep_lib.sh x0_box) belongs here too, so that ``sample`` re-runs its full-precision x0."""
 EXACT = ("status", "success", "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing",
