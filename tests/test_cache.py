@@ -24,7 +24,8 @@ MISS = [("system", "system.params.mu=1.5"), ("data", "data.T=4.0"), ("data", "da
 HIT = [("clf", "clf.grid=21"), ("controller", "controller.lmpc.horizon=30"), ("controller", "controller.u_max=4.0"),
        ("controller", "controller.law=lie_gain"), ("sim", "sim.T=2.0"), ("sim", "sim.x0=[0.5,0.5]"),
        ("logging", "logging.mcap=false"), ("cache", "cache.dir=/tmp/elsewhere"), ("cache", "cache.enabled=false"),
-       ("sweep", "sweep.resume=true")]
+       ("sweep", "sweep.resume=true"),
+       ("plant", "plant=python")]   # with simulated data; data from a plant key the plant (test_plants.py)
 
 
 def _cfg(overrides=()):

@@ -247,3 +247,20 @@ def test_plant_system_has_no_formula():
         s.drift(np.zeros((1, 3)))
     with pytest.raises(PlantError, match="plant.equilibrium has 2 entries; plant 'rig' has n=3"):
         PlantSystem(plant_id="rig", n_states=3, n_inputs=1, x_eq=(0.0, 0.0))
+
+
+def test_data_from_a_plant_key_the_model_by_the_plant(tmp_path):
+    """With data.source.kind=plant, the plant's config (its class and parameters) and identity are part of the
+    model's cache key: a rig with another μ is identified anew, the same rig again is a hit."""
+    base = [o for o in SMALL if "lmpc" not in o] + [
+        "system=plant", "plant=python", "plant.target=plant_rigs:VdpRig", "data.source.kind=plant",
+        "identification.inputs=regression", "+data.excitation={low: -1.0, high: 1.0}", "logging.mcap=false",
+        "logging.rrd=false", "controller=model_lqr", f"cache.dir={tmp_path / 'cache'}"]
+    quiet = dict(echo=lambda *_: None)
+    a = run(_compose(base), tmp_path / "a", **quiet)
+    b = run(_compose(base + ["+plant.params={mu: 1.5}"]), tmp_path / "b", **quiet)
+    c = run(_compose(base), tmp_path / "c", **quiet)
+    assert not any(h.startswith("model-") for h in a["cache"]["hits"] + b["cache"]["hits"])
+    assert any(h.startswith("model-") for h in c["cache"]["hits"])
+    assert a["model"]["eigenvalues"] != b["model"]["eigenvalues"] and c["model"]["eigenvalues"] == \
+        a["model"]["eigenvalues"]

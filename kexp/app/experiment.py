@@ -234,7 +234,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     # recorded data: the files' content (not only their path) determines the model
     # data from a plant: its kind, id and package versions (an environment's physics) determine the model too
     digest = file_data.report.digest if file_data is not None else (
-        json.dumps(plain(_plant_identity(ext_plant, plant_cfg)), sort_keys=True) if data_cfg.source.kind == "plant"
+        json.dumps(plain({"plant": cfg_dict.get("plant"), **_plant_identity(ext_plant, plant_cfg)}), sort_keys=True)
+        if data_cfg.source.kind == "plant"
         else None)
     mkey = model_key(cfg_dict, FORMAT_VERSION, digest)
     model = cache.get_or_create(mkey, identify_now, lambda m, p: m.save(p), KoopmanBilinearModel.load)
