@@ -164,8 +164,9 @@ def test_same_seeds_give_identical_steps_and_another_seed_differs(runs):
 def test_plant_mismatch_runs_the_changed_plant(runs):
     d, summary = runs["mismatch"]
     nd, nominal = runs["nominal"]
-    assert summary["plant"] == {"params": {"mu": 2.0}, "mismatch": {"mu": {"nominal": 1.0, "plant": 2.0}}}
-    assert nominal["plant"] == {"params": {"mu": 1.0}, "mismatch": {}}
+    plant = {"kind": "integrator", "id": "vanderpol", "versions": {}}   # kexp's integrator (kexp.plants)
+    assert summary["plant"] == {"params": {"mu": 2.0}, "mismatch": {"mu": {"nominal": 1.0, "plant": 2.0}}, **plant}
+    assert nominal["plant"] == {"params": {"mu": 1.0}, "mismatch": {}, **plant}
     # the data and the model are the nominal system's: the mismatch run loads the nominal run's model
     assert summary["cache"]["hits"] and summary["cache"]["hits"][0].startswith("model-")
     assert KoopmanBilinearModel.load(d / "model.npz") == KoopmanBilinearModel.load(nd / "model.npz")

@@ -22,7 +22,8 @@ RESULTS = Path(__file__).resolve().parents[1] / "results"
 
 
 def _x0(seed=42, low=-1.0, high=1.0, n=100):
-    return np.random.default_rng(seed).uniform(low, high, (2, n)).T
+    lo, hi = (np.repeat(np.asarray(b, float), 2) if np.ndim(b) == 0 else np.asarray(b, float) for b in (low, high))
+    return np.random.default_rng(seed).uniform(lo[:, None], hi[:, None], (lo.size, n)).T
 
 
 def _rows(x0s, **kw):
@@ -47,7 +48,7 @@ def _write(path, rows, header=COLUMNS):
     return path
 
 
-@pytest.mark.parametrize("gen", GENERATORS)
+@pytest.mark.parametrize("gen", [g for g in GENERATORS if np.size(g[1]) <= 2])   # 4 states: test_results_nstates
 def test_sample_gives_the_row_scripts_full_precision_x0_evenly_spaced(tmp_path, gen):
     """A CSV holds x0 to 10 digits; sample maps each back to the generator's float, bit for bit, and takes the
     rows 0, 11, 22, …, 99 of 100 for n = 10 (evenly spaced, first and last included)."""
@@ -74,12 +75,17 @@ def test_sample_keeps_a_csvs_own_digits_and_takes_every_row_when_asked_for_more(
 
 
 def test_generators_are_the_row_scripts():
-    """GENERATORS names the x0 that robustness.sh, regions.sh and regions.sh --map sweep (their x0_list calls)."""
-    text = {s: (RESULTS / s).read_text() for s in ("robustness.sh", "regions.sh")}
+    """GENERATORS names the x0 that robustness.sh, regions.sh and regions.sh --map sweep (their x0_list calls), and
+    the boxes of plants.sh (x0_box)."""
+    text = {s: (RESULTS / s).read_text() for s in ("robustness.sh", "regions.sh", "plants.sh")}
+    assert 'gym_pendulum) echo "-0.6,-1.5 0.6,1.5"' in text["plants.sh"]
+    assert 'gym_inverted_pendulum) echo "-0.5,-0.6,0,0 0.5,0.6,0,0"' in text["plants.sh"]
     assert "X0=$(x0_list -1 1)" in text["robustness.sh"]
     assert "X0=$(x0_list -2 2)" in text["regions.sh"] and "X0=$(x0_list -2 2 43 300)" in text["regions.sh"]
     assert "${3:-42}" in (RESULTS / "sweep_lib.sh").read_text() and "${4:-100}" in (RESULTS / "sweep_lib.sh").read_text()
-    assert set(GENERATORS) == {(42, -1.0, 1.0, 100), (42, -2.0, 2.0, 100), (43, -2.0, 2.0, 300)}
+    assert set(GENERATORS) == {(42, -1.0, 1.0, 100), (42, -2.0, 2.0, 100), (43, -2.0, 2.0, 300),
+                               (42, (-0.6, -1.5), (0.6, 1.5), 100),
+                               (42, (-0.5, -0.6, 0.0, 0.0), (0.5, 0.6, 0.0, 0.0), 100)}
 
 
 @pytest.fixture

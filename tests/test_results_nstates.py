@@ -179,7 +179,7 @@ def test_collect_writes_as_many_x0_columns_as_the_runs_have_states(tmp_path, cap
 
 
 def test_generated_x0_of_a_box_and_the_2_state_draws_unchanged():
-    for seed, low, high, n in reproduce.GENERATORS:
+    for seed, low, high, n in (g for g in reproduce.GENERATORS if np.ndim(g[1]) == 0):   # the 2-state rows
         old = [tuple(map(float, x)) for x in np.random.default_rng(seed).uniform(low, high, (2, n)).T]
         assert reproduce.generated_x0(seed, low, high, n) == old
         assert reproduce.generated_x0(seed, [low, low], [high, high], n) == old
