@@ -299,6 +299,22 @@ def test_mujoco_not_installed_is_one_line(monkeypatch):
     assert str(exc.value) == f"{EXTRA} (InvertedPendulum-v5 needs mujoco)"
 
 
+def test_a_module_the_env_imports_when_built_is_one_line(monkeypatch):
+    """imageio missing (gymnasium's MuJoCo renderer imports it as an environment is built; gymnasium[mujoco]
+    brings it, and the plants extra asks for that): one line naming the extra and the module, not a hint about
+    keyword arguments (what a fresh venv without imageio printed)."""
+    monkeypatch.setitem(sys.modules, "imageio", None)
+    for name in [n for n in sys.modules if n.startswith("gymnasium.envs.mujoco")]:
+        monkeypatch.delitem(sys.modules, name)
+    try:
+        with pytest.raises(PlantError) as exc:
+            _plant("InvertedPendulum-v5")
+    finally:
+        for name in [n for n in sys.modules if n.startswith("gymnasium.envs.mujoco")]:
+            del sys.modules[name]
+    assert str(exc.value) == f"{EXTRA} (InvertedPendulum-v5 needs the module 'imageio', which is not installed)"
+
+
 def test_failures_while_running_are_one_line():
     """A step with the wrong number of inputs; a reset to the wrong number of states (CheckedPlant)."""
     plant = _plant("Pendulum-v1")

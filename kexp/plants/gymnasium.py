@@ -254,8 +254,14 @@ def make_gymnasium_plant(config) -> GymnasiumPlant:
         if "mujoco" in str(exc).lower():
             raise PlantError(f"{EXTRA} ({env_id} needs mujoco)") from None
         raise PlantError(f"plant.env_id={env_id!r} needs a package that is not installed: {_short(exc)}") from None
+    except ImportError as exc:   # a package the environment imports as it is built (MuJoCo's renderer: imageio)
+        missing = getattr(exc, "name", None) or _short(exc)
+        raise PlantError(f"{EXTRA} ({env_id} needs the module {missing!r}, which is not installed)") from None
     except Exception as exc:  # noqa: BLE001 - the environment's constructor: one line
         cause = exc.__cause__ or exc   # gymnasium re-raises a TypeError with the kwargs appended
+        if isinstance(cause, ImportError):
+            missing = getattr(cause, "name", None) or _short(cause)
+            raise PlantError(f"{EXTRA} ({env_id} needs the module {missing!r}, which is not installed)") from None
         raise PlantError(f"plant.env_id={env_id!r}, plant.env_kwargs={short(env_kwargs)}: the environment was not "
                          f"built ({_short(cause)}); check the keyword arguments it takes") from None
     try:
