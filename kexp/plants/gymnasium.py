@@ -259,9 +259,6 @@ def make_gymnasium_plant(config) -> GymnasiumPlant:
         raise PlantError(f"{EXTRA} ({env_id} needs the module {missing!r}, which is not installed)") from None
     except Exception as exc:  # noqa: BLE001 - the environment's constructor: one line
         cause = exc.__cause__ or exc   # gymnasium re-raises a TypeError with the kwargs appended
-        if isinstance(cause, ImportError):
-            missing = getattr(cause, "name", None) or _short(cause)
-            raise PlantError(f"{EXTRA} ({env_id} needs the module {missing!r}, which is not installed)") from None
         raise PlantError(f"plant.env_id={env_id!r}, plant.env_kwargs={short(env_kwargs)}: the environment was not "
                          f"built ({_short(cause)}); check the keyword arguments it takes") from None
     try:
