@@ -45,6 +45,19 @@ def linearise(system, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
     return A, np.asarray(system.input_matrix(xe[None])[0], float)
 
 
+def lqr_settings(u_min, u_max, m: int, q, r, clf, who: str) -> tuple[np.ndarray, np.ndarray]:
+    """The input bounds (low, high) of an LQR baseline ``who`` after the checks every one makes: u_min < u_max
+    (finite, a number or m numbers each), q and r finite and > 0, ``clf`` (if given) a CLF.  ConfigError otherwise."""
+    lo, hi = input_bounds(u_min, u_max, m)
+    require_number(q, "controller.q")
+    require_number(r, "controller.r")
+    if not (q > 0 and r > 0 and np.isfinite(q) and np.isfinite(r)):
+        raise ConfigError(f"lqr weights q={q}, r={r}: both must be finite and > 0 (controller.q, controller.r)")
+    if clf is not None:
+        check_clf(clf, who)
+    return lo, hi
+
+
 class LqrController:
     """Baseline: LQR (Q = q·I, R = r·I) on the true linearisation at the equilibrium, saturated."""
 
@@ -53,13 +66,7 @@ class LqrController:
     def __init__(self, system, u_min, u_max, q: float = 1.0, r: float = 1.0, clf=None):
         """Raises :class:`~kexp.errors.ConfigError` unless u_min < u_max (finite, a number or m numbers each) and
         q, r are finite and > 0."""
-        lo, hi = input_bounds(u_min, u_max, system.m)
-        require_number(q, "controller.q")
-        require_number(r, "controller.r")
-        if not (q > 0 and r > 0 and np.isfinite(q) and np.isfinite(r)):
-            raise ConfigError(f"lqr weights q={q}, r={r}: both must be finite and > 0 (controller.q, controller.r)")
-        if clf is not None:
-            check_clf(clf, "LqrController")
+        lo, hi = lqr_settings(u_min, u_max, system.m, q, r, clf, "LqrController")
         A, B = linearise(system)
         X = sla.solve_continuous_are(A, B, q * np.eye(system.n), r * np.eye(system.m))
         self.K = np.linalg.solve(r * np.eye(system.m), B.T @ X)

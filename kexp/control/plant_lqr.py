@@ -30,8 +30,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import ConfigError, PlantError, require_number
-from .checks import check_clf, input_bounds
-from .explicit import LqrController
+from .explicit import LqrController, lqr_settings
 
 EPS = 1e-4          # relative finite-difference step: the minimum of the error measured above
 EQ_TOL = 1e-6       # ‖x⁺ − x_eq‖ / max(1, ‖x_eq‖) above which x_eq is refused as an equilibrium of the plant
@@ -124,13 +123,7 @@ class PlantLqrController(LqrController):
     name = "lqr"
 
     def __init__(self, plant, x_eq, u_min, u_max, q: float = 1.0, r: float = 1.0, clf=None, eps: float = EPS):
-        lo, hi = input_bounds(u_min, u_max, int(plant.m))
-        require_number(q, "controller.q")
-        require_number(r, "controller.r")
-        if not (q > 0 and r > 0 and np.isfinite(q) and np.isfinite(r)):
-            raise ConfigError(f"lqr weights q={q}, r={r}: both must be finite and > 0 (controller.q, controller.r)")
-        if clf is not None:
-            check_clf(clf, "PlantLqrController")
+        lo, hi = lqr_settings(u_min, u_max, int(plant.m), q, r, clf, "PlantLqrController")
         t0 = time.perf_counter()
         self.Ad, self.Bd, self.linearisation = linearise_plant(plant, x_eq, eps=eps)
         self.K = discrete_lqr_gain(self.Ad, self.Bd, q, r, float(plant.dt))

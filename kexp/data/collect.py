@@ -150,13 +150,7 @@ def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfi
         x = integrate(system, x0, t, u, config.integrator)
     except IntegrationFailure as exc:
         raise DataError(f"data collection: {exc}; shrink the initial-condition region or duration") from None
-    valid = np.ones(x.shape[:2], dtype=bool)
-    n_dropped = 0
-    if config.filter.active:
-        x, valid, u, n_dropped = config.filter.apply(x, valid, u, xe)
-    if x.shape[0] == 0 or not valid.any():
-        raise DataError("data collection: the filter removed every sample; widen data.filter or move the "
-                        "initial conditions inside it")
+    x, valid, u, n_dropped = apply_filter(config, x, np.ones(x.shape[:2], dtype=bool), u, xe, "data collection")
     fx = system.drift(x) if config.pairs == "euler" else None
     ds = Dataset(t=t, x=x, valid=valid, dt=config.dt, pair_rule=config.pairs, system_name=system.name, u=u, fx=fx)
     report = DataReport(n_traj=int(x0.shape[0]), n_samples=int(valid.size), n_pairs=ds.n_pairs,
@@ -168,6 +162,18 @@ def collect(system: ControlAffineSystem, sampler, config: DataConfig = DataConfi
                         f"trajectories excited ({config.excitation.kind})")
     object.__setattr__(ds, "report", report)
     return ds
+
+
+def apply_filter(config: DataConfig, x, valid, u, x_eq, where: str):
+    """(x, valid, u, trajectories dropped) after ``config.filter`` (:meth:`RegionFilter.apply`); DataError naming
+    ``where`` when it leaves no sample."""
+    n_dropped = 0
+    if config.filter.active:
+        x, valid, u, n_dropped = config.filter.apply(x, valid, u, x_eq)
+    if x.shape[0] == 0 or not valid.any():
+        raise DataError(f"{where}: the filter removed every sample; widen data.filter or move the initial "
+                        "conditions inside it")
+    return x, valid, u, n_dropped
 
 
 def _check_collect(system, sampler, config) -> None:

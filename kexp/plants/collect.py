@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data.collect import DataConfig, check_data_size
+from ..data.collect import DataConfig, apply_filter, check_data_size
 from ..data.dataset import DataReport, Dataset
 from ..data.integrate import IntegrationFailure
 from ..errors import ConfigError, DataError, KexpError
@@ -52,12 +52,7 @@ def collect_from_plant(plant, sampler, config: DataConfig, x_eq, name: str, *, p
     if not valid.any() or valid.sum() < 2:
         raise DataError(f"data from plant {name!r}: no step succeeded ({first_failure}); check the plant and the "
                         "initial-condition region")
-    n_dropped = 0
-    if config.filter.active:
-        x, valid, u, n_dropped = config.filter.apply(x, valid, u, xe)
-    if x.shape[0] == 0 or not valid.any():
-        raise DataError("data from the plant: the filter removed every sample; widen data.filter or move the "
-                        "initial conditions inside it")
+    x, valid, u, n_dropped = apply_filter(config, x, valid, u, xe, "data from the plant")
     x = np.where(valid[..., None], x, 0.0)   # masked samples hold no NaN (Dataset's rule for invalid samples)
     ds = Dataset(t=t, x=x, valid=valid, dt=config.dt, pair_rule="next", system_name=name, u=u)
     excited = "" if config.excitation is None else (
