@@ -71,3 +71,30 @@ def test_the_presets_run_as_the_readme_says(tmp_path, preset, x0, cost):
     assert summary["x0"] == x0 and summary["plant"]["kind"] == "gymnasium"
     assert summary["metrics"]["success"] and summary["metrics"]["fallbacks"] == 0
     assert summary["metrics"]["cost"] == pytest.approx(cost, rel=1e-3)
+
+
+def test_a_run_mostly_on_its_fallback_says_so(tmp_path):
+    """An LMPC whose QP cannot finish (one interior-point iteration) falls back to h at every step: the run ends as
+    h's run and says so in one warning line, also kept in summary.json (before plants, degree-5 models of
+    Pendulum-v1 did this silently: only 'fallbacks 200' in the result line)."""
+    from hydra import compose, initialize_config_dir
+    from kexp.app.conf import CONF_DIR
+    from kexp.app.experiment import run
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["+experiment=gym_pendulum", "logging.mcap=false",
+                                                        "logging.rrd=false", "controller.lmpc.qp_max_iter=1",
+                                                        f"cache.dir={tmp_path / 'cache'}"])
+    lines = []
+    summary = run(cfg, tmp_path / "run", echo=lines.append)
+    steps = 200
+    assert summary["metrics"]["fallbacks"] == steps
+    warning = ("the controller fell back to its explicit law h at 200 of 200 steps (100 %): its QP failed or was "
+               "infeasible there, so this run measured h more than the MPC")
+    assert [ln for ln in lines if ln.startswith("warning: the controller fell back")][0].startswith(f"warning: {warning}")
+    assert summary["warnings"][0].startswith(warning)
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        ok = compose(config_name="config", overrides=["+experiment=gym_pendulum", "logging.mcap=false",
+                                                       "logging.rrd=false", f"cache.dir={tmp_path / 'cache'}"])
+    lines = []
+    assert "warnings" not in run(ok, tmp_path / "ok", echo=lines.append)
+    assert not any("fell back" in ln for ln in lines)

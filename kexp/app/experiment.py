@@ -347,6 +347,10 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
                              "logging_s": log_seconds[0]}
     metrics["timing"] = phases
 
+    fell_back = _fallback_warning(m.fallbacks, len(result.records))
+    if fell_back is not None:   # said with the result below, and kept in summary.json
+        metrics["warnings"] = [fell_back]
+
     def write_summary() -> None:
         phase("finish_s")   # the log's last messages, the Rerun recording, the summary
         metrics["wall_time_s"] = mark[0] - t0   # the phases' sum: the run up to its summary
@@ -358,13 +362,15 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
             files["rrd"] = "run.rrd"
         else:   # the run and its log are complete; say why there is no recording
             echo(f"warning: {warning}")
-            metrics["warnings"] = [warning]
+            metrics.setdefault("warnings", []).append(warning)
         write_summary()
     echo(f"result: {'SUCCESS' if m.success else 'FAILED'} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
          f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "
          f"max {m.solve_time_max * 1e3:.2f} ms")
+    if fell_back is not None:
+        echo(f"warning: {fell_back}")
     if m.solve_time_median > sim_cfg.dt:   # the controller cannot keep up with the plant in real time
         echo(f"warning: the median solve time {m.solve_time_median * 1e3:.2f} ms exceeds Δ = {sim_cfg.dt * 1e3:g} ms: "
              "this controller could not run in real time at this Δ (fewer move blocks, a shorter horizon or a "
@@ -375,6 +381,20 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
              f"{rt.late_max * 1e3:.2f} ms (step {rt.late_max_k}), p99 {rt.late_p99 * 1e3:.2f} ms (< 0: time to spare)")
     echo(f"files: {out_dir.resolve()} ({', '.join(files.values())})")
     return metrics
+
+
+FALLBACK_WARN = 0.1   # the share of steps on the fallback h above which a run says it was mostly h
+
+
+def _fallback_warning(fallbacks: int, steps: int) -> str | None:
+    """The warning of a run whose controller fell back to its explicit law h at more than :data:`FALLBACK_WARN` of
+    its steps (its QP failed or was infeasible there: the run measured h, not the MPC), or None."""
+    if steps == 0 or fallbacks <= FALLBACK_WARN * steps:
+        return None
+    return (f"the controller fell back to its explicit law h at {fallbacks} of {steps} steps "
+            f"({100 * fallbacks / steps:.0f} %): its QP failed or was infeasible there, so this run measured h "
+            "more than the MPC (each step's qp_status is in run.mcap; try a shorter horizon or a lower "
+            "dictionary degree)")
 
 
 def _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec) -> None:
