@@ -117,6 +117,20 @@ def test_g_is_used_only_by_the_simulator(guarded_model):
         assert run.metrics.success, (x0, run.status, run.metrics)
 
 
+def test_a_regressed_model_does_not_print_assumption_1_as_evidence(guarded_model):
+    """With B regressed, G was never used: the projection residual is ~0 by construction and says nothing, so the
+    summary says 'not checked' instead of printing it (it printed 1.36e-15 as if the assumption held); a projected
+    model still prints its residual."""
+    _, model = guarded_model
+    assert max(model.report["input_projection_residual"]) < 1e-10      # the number that cannot fail
+    text = model.summary()
+    assert "Assumption 1 (L_G Ψ = BΨ): not checked (G unknown, B regressed)" in text
+    assert "Assumption 1 (L_G Ψ = BΨ) relative residual" not in text
+    s = VanDerPol()
+    projected = identify(s, collect(s, Box(20, -2.0, 2.0), DataConfig(T=2.0)), Monomials(2, 3))
+    assert "Assumption 1 (L_G Ψ = BΨ) relative residual: " in projected.summary()
+
+
 def test_regressed_input_field_matches_the_true_g_on_van_der_pol():
     """Van der Pol: L_G of degree-5 monomials stays in the span, so the input's effect on ẋ is identifiable;
     the regressed model's C(B z + b) matches projection's (from the true G) over the data to 1e-6 although the
