@@ -186,6 +186,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     else:   # the baselines that need a model of the plant get the system (a formula, or the plant's n, m, x_eq)
         plant, plant_params = system, {}
         spec = narrow_bounds(spec, ext_plant, echo)
+    plant_info = _plant_identity(ext_plant, plant_cfg, plant)   # kind, id, Δ, versions: logged and keyed
     log_cfg = build_logging(cfg.get("logging") or {})
     if log_cfg["mcap"] and log_cfg["writer"] == "process":
         prestart_writer()   # the writer process's imports run on the other core during data, identification, CLF
@@ -234,7 +235,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     # recorded data: the files' content (not only their path) determines the model
     # data from a plant: its kind, id and package versions (an environment's physics) determine the model too
     digest = file_data.report.digest if file_data is not None else (
-        json.dumps(plain({"plant": cfg_dict.get("plant"), **_plant_identity(ext_plant, plant_cfg)}), sort_keys=True)
+        json.dumps(plain({"plant": cfg_dict.get("plant"), **plant_info}), sort_keys=True)
         if data_cfg.source.kind == "plant"
         else None)
     mkey = model_key(cfg_dict, FORMAT_VERSION, digest)
@@ -245,7 +246,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     rms = model.report.get("data_rms")
     perturbation = _perturbation(system, plant_params, model, sim_cfg)
     if ext_plant is not None:   # the log says what the loop ran on (kexp's integrator: the log as it always was)
-        perturbation["plant"].update(kind=plant_cfg.kind, id=_plant_identity(ext_plant, plant_cfg)["id"])
+        perturbation["plant"].update(kind=plant_cfg.kind, id=plant_info["id"])
     for line in _perturbation_lines(perturbation):
         echo(line)
     clf = cache.get_or_create(
@@ -303,7 +304,6 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
     timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
     versions = _versions()
-    plant_info = _plant_identity(ext_plant, plant_cfg, plant)
     versions.update(plant_info["versions"])
     lock = lock_info().to_dict()
     files = {"model": model_path.name}
@@ -422,7 +422,7 @@ def _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec) -> None:
                           "the oracle is n/a here (use controller=lqr, model_lqr or lmpc)")
 
 
-def _plant_identity(ext_plant, plant_cfg, system=None) -> dict:
+def _plant_identity(ext_plant, plant_cfg, system) -> dict:
     """The plant's kind, id and package versions (``/run_info``, ``summary.json``)."""
     if ext_plant is None:
         return {"kind": "integrator", "id": getattr(system, "name", None), "versions": {}}
