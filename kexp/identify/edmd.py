@@ -12,13 +12,14 @@ Returned K follows the paper: φ(y) ≈ K φ(x); D_i: Lφ_i ≈ D_i φ.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
 import numpy as np
 import scipy.linalg as sla
 
 from ..errors import ConfigError, DataError
+from .fixed_point import solve_fixed_point
 
 METHODS = ("qr", "gram")
 
@@ -110,6 +111,7 @@ class LeastSquaresFit(TriangularFacts):
     method: str
     rcond: float
     n_extra: int = 0   # 1: a column of ones follows Φ_X (the constant, for B and b when φ has none)
+    fixed_point: np.ndarray | None = field(default=None, compare=False)   # φ(x_eq) (N,): K φ(x_eq) = φ(x_eq)
 
     @property
     def r11(self) -> np.ndarray:
@@ -138,6 +140,12 @@ class LeastSquaresFit(TriangularFacts):
 
     @property
     def K(self) -> np.ndarray:
+        """(N, N) φ(y) ≈ K φ(x), with K φ(x_eq) = φ(x_eq) imposed when ``fixed_point`` is given (fixed_point.py)."""
+        return solve_fixed_point(self.solve, self.r11, self.inside(0), self.fixed_point, self.fixed_point).T
+
+    @property
+    def raw_K(self) -> np.ndarray:
+        """(N, N) the unconstrained least-squares K (the plain EDMD fit; equal to K without ``fixed_point``)."""
         return self.solve(self.r11, self.inside(0)).T
 
     @property
@@ -155,11 +163,13 @@ class LeastSquaresFit(TriangularFacts):
 
 def fit_least_squares(chunks: Iterable[tuple[np.ndarray, np.ndarray]], lift: Callable[[np.ndarray], np.ndarray],
                       *, lie_inputs: Callable[[np.ndarray], np.ndarray] | None = None, m: int = 0,
-                      method: str = "qr", rcond: float = 1e-13, add_constant: bool = False) -> LeastSquaresFit:
+                      method: str = "qr", rcond: float = 1e-13, add_constant: bool = False,
+                      fixed_point: np.ndarray | None = None) -> LeastSquaresFit:
     """One streamed pass over (X, Y) chunks (rows, n).  ``lift(X)`` -> (rows, N); ``lie_inputs(X)`` ->
     (rows, N, m), the dictionary's Lie derivatives along the m input fields (omit for K only).
     ``add_constant``: put a column of ones after Φ_X, so the input terms can be projected on [Ψ, 1] when the
-    dictionary has no constant (it does not change K: QR is sequential in the columns)."""
+    dictionary has no constant (it does not change K: QR is sequential in the columns).  ``fixed_point``: φ(x_eq)
+    (N,), imposed as K φ(x_eq) = φ(x_eq) (x_eq an equilibrium of the unforced system; fixed_point.py)."""
     if method not in METHODS:
         raise ConfigError(f"identification.method={method!r}; valid: {METHODS}")
     if not 0 < rcond < 1:
@@ -199,4 +209,15 @@ def fit_least_squares(chunks: Iterable[tuple[np.ndarray, np.ndarray]], lift: Cal
         raise DataError(f"{n_pairs} snapshot pairs for a dictionary of {N} functions: need at least {N} "
                         "(more trajectories, a longer duration, or a lower degree)")
     return LeastSquaresFit(R=acc.factor(), N=N, m=m, n_pairs=n_pairs, method=method, rcond=rcond,
-                           n_extra=1 if add_constant else 0)
+                           n_extra=1 if add_constant else 0, fixed_point=_fixed(fixed_point, N))
+
+
+def _fixed(value, N: int) -> np.ndarray | None:
+    """φ(x_eq) as a read-only (N,) array (None: no constraint)."""
+    if value is None:
+        return None
+    out = np.array(value, dtype=float).reshape(-1)
+    if out.shape != (N,) or not np.isfinite(out).all():
+        raise ConfigError(f"fixed_point: φ(x_eq) must be {N} finite numbers, got shape {np.shape(value)}")
+    out.setflags(write=False)
+    return out

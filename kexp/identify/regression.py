@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import itertools
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Callable, Iterable
 
@@ -26,7 +26,8 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import ConfigError, DataError
-from .edmd import METHODS, TriangularFacts, _StreamedGram, _StreamedQR
+from .edmd import METHODS, TriangularFacts, _StreamedGram, _StreamedQR, _fixed
+from .fixed_point import solve_fixed_point
 
 
 def input_monomials(m: int, degree: int) -> tuple[tuple[int, ...], ...]:
@@ -53,6 +54,7 @@ class BilinearFit(TriangularFacts):
     method: str
     rcond: float
     n_extra: int = 0
+    fixed_point: np.ndarray | None = field(default=None, compare=False)   # φ(x_eq) (N,): K̄₀ φ̄(x_eq) = φ̄(x_eq)
 
     @property
     def n_bar(self) -> int:
@@ -73,7 +75,20 @@ class BilinearFit(TriangularFacts):
 
     @cached_property
     def coef(self) -> np.ndarray:
-        """(P, N): φ(y) ≈ [φ̄ | u^α φ̄ …] @ coef."""
+        """(P, N): φ(y) ≈ [φ̄ | u^α φ̄ …] @ coef; with ``fixed_point``, at u = 0 the equilibrium stays put:
+        φ̄(x_eq)ᵀ coef[:N̄] = φ(x_eq)ᵀ (so an intercept, the drift at x_eq, is not fitted; fixed_point.py)."""
+        P = self.P
+        a = None
+        if self.fixed_point is not None:
+            a = np.zeros(P)
+            a[: self.N] = self.fixed_point
+            a[self.N: self.n_bar] = 1.0
+        return solve_fixed_point(self.solve, self.R[:P, :P], self.R[:P, P:], a,
+                                 None if a is None else self.fixed_point)
+
+    @cached_property
+    def raw_coef(self) -> np.ndarray:
+        """(P, N) the unconstrained regression (equal to ``coef`` without ``fixed_point``)."""
         P = self.P
         return self.solve(self.R[:P, :P], self.R[:P, P:])
 
@@ -135,9 +150,11 @@ class BilinearFit(TriangularFacts):
 
 def fit_bilinear(chunks: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
                  lift: Callable[[np.ndarray], np.ndarray], *, m: int, degree: int = 3, method: str = "qr",
-                 rcond: float = 1e-13, add_constant: bool = False) -> BilinearFit:
+                 rcond: float = 1e-13, add_constant: bool = False,
+                 fixed_point: np.ndarray | None = None) -> BilinearFit:
     """One streamed pass over (X, U, Y) chunks ((rows, n), (rows, m), (rows, n)); memory independent of the
-    number of pairs.  ``add_constant``: a column of ones after φ(X) (for a dictionary without a constant)."""
+    number of pairs.  ``add_constant``: a column of ones after φ(X) (for a dictionary without a constant).
+    ``fixed_point``: φ(x_eq) (N,): the unforced one-step map keeps x_eq (fixed_point.py)."""
     if method not in METHODS:
         raise ConfigError(f"identification.method={method!r}; valid: {METHODS}")
     if not (isinstance(degree, (int, np.integer)) and 1 <= degree <= 5):
@@ -181,7 +198,7 @@ def fit_bilinear(chunks: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
         idle = [i for i in range(m) if u_seen[i] == 0]
         raise DataError(f"input(s) {idle} are zero in every pair: regression needs forced data (data.excitation)")
     fit = BilinearFit(R=acc.factor(), N=N, m=m, monomials=monos, n_pairs=n_pairs, method=method, rcond=rcond,
-                      n_extra=e)
+                      n_extra=e, fixed_point=_fixed(fixed_point, N))
     if n_pairs < fit.P:
         raise DataError(f"{n_pairs} forced pairs for {fit.P} regressors (dictionary × input monomials): collect "
                         f"more data or lower identification.input_degree")

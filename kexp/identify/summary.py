@@ -43,10 +43,16 @@ def model_summary(model) -> str:
                          + ("  (dictionary-level: " + ", ".join(f"{v:.2e}" for v in r["dictionary_lie_residual"])
                             + ")" if r.get("dictionary_lie_residual") else ""))
         lines.append(f"drift dropped at the equilibrium: |ΛΨ(x_eq)| = {r['drift_at_equilibrium']:.3e} "
-                     f"(in x: {r['drift_at_equilibrium_x']:.3e})")
+                     f"(in x: {r['drift_at_equilibrium_x']:.3e})"
+                     + ("; the fit keeps x_eq fixed (identification.fix_equilibrium)" if r.get("fix_equilibrium")
+                        else ""))
         pe = r.get("prediction_error", {})
         lines.append(f"prediction error ({r.get('prediction_data', '?')} trajectories, relative RMS): "
                      + ", ".join(f"{k.replace('_', ' ')} {v:.2%}" for k, v in pe.items()))
+        vs = r.get("prediction_vs_fit")
+        if vs:   # what deriving the control model (eigen-coordinates, shift, truncation) costs against the raw fit
+            lines.append("control model vs its raw fit (same windows, relative RMS): "
+                         + ", ".join(f"{k.replace('_', ' ')} {v['model']:.2%} vs {v['fit']:.2%}" for k, v in vs.items()))
         for w in r.get("warnings", []):
             lines.append("WARNING: " + w)
     lines.append(f"{'#':>3} {'λ (continuous)':>24} {'|λ̃|':>9} {'residual':>9}  |B z| gain")
