@@ -8,7 +8,9 @@
 #                                           # the grammar below runs)
 #   results/robustness.sh --overrides ROW   # the row's kexp overrides, one per line (results/reproduce.sh)
 #
-# Row names: <system>_<controller>[-reg][-noise1|-noise3][-raw|-sgN][-mu0.8|...|-c0.012]; -reg: B, b regressed
+# Row names: <system>_<controller>[-reg][-noise1|-noise3][-dnN][-mnN][-raw|-sgN][-iv][-mu0.8|...|-c0.012]; -dnN: N % noise
+# on the data only, unsmoothed; -mnN: N % measurement noise in the closed loop only, each x0 its own draw
+# (sim.noise.per_x0); -iv: the instrumental-variables estimator (identification.estimator=iv); -reg: B, b regressed
 # from excited data (G unknown); -noiseN: N % Gaussian noise (of the data's RMS) on the data and the closed loop's
 # measurements, the data smoothed before identification (data.smooth.window=7, or N with -sgN) unless -raw; mu…/c…: the
 # plant's parameter (Van der Pol μ = 1, pendulum c = 0.01) 20 % off the data's system.  Controllers: lmpc (the working
@@ -38,6 +40,9 @@ overrides() {  # ROW -> the kexp overrides of that row
             reg) out+=("data.excitation={low: -1.0, high: 1.0, hold: 10}" identification.inputs=regression) ;;
             noise1) out+=(data.noise.std=0.01 sim.noise.std=0.01); smooth=1 ;;
             noise3) out+=(data.noise.std=0.03 sim.noise.std=0.03); smooth=1 ;;
+            dn1|dn3|dn5) out+=("data.noise.std=0.0${tok#dn}"); raw=1 ;;   # the data's noise only, unsmoothed
+            mn1|mn3) out+=("sim.noise.std=0.0${tok#mn}" sim.noise.per_x0=true) ;;   # the loop's only, a draw per x0
+            iv) out+=(identification.estimator=iv) ;;
             raw) raw=1 ;;
             sg[0-9]*) win=${tok#sg} ;;
             mu0.8|mu1.2) out+=("+sim.plant_params.mu=${tok#mu}") ;;
@@ -66,6 +71,12 @@ for s in vanderpol pendulum; do
     for c in lqr nmpc; do
         for v in -noise1 -noise3 "-$lo" "-$hi"; do ROWS+=("${s}_$c$v"); done
     done
+done
+
+# issue 34: raw 3 % data noise and 1 % measurement noise (a draw per x0), G regressed, least squares and IV, against
+# the LQR and the oracle under the same measurement noise
+for s in vanderpol pendulum; do
+    ROWS+=("${s}_lmpc-reg-dn3-mn1" "${s}_lmpc-reg-dn3-mn1-iv" "${s}_lqr-mn1" "${s}_nmpc-mn1")
 done
 
 # the cart pendulum (G varies with x; README "A state-dependent input matrix"): G regressed, and with 1 % noise

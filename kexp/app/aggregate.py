@@ -151,6 +151,7 @@ def _row(job: Path, root: Path, overrides: list[str] | None, summary: dict | Non
         "max_abs_u": None, "fallbacks": None, "solve_median_ms": None, "solve_p99_ms": None, "certificate": None,
         "certificate_verdict": None, "clf_status": None, "wall_time_s": None, "reason": reason or "",
         "inputs": None, "data_noise": None, "smoothing": None, "sim_noise": None, "mismatch": None,
+        "estimator": None, "sim_noise_per_x0": None,
     }
     if summary is None:
         row["status"] = missing_status
@@ -203,7 +204,8 @@ def _conditions(summary: dict) -> dict:
     known G, or regression from forced data), ``data_noise`` and ``sim_noise`` (measurement noise on the data and
     in the closed loop, as the largest fraction of the data's RMS over the states), ``smoothing`` (the filter on
     the data before identification: 'none' or e.g. 'Savitzky–Golay, window 21, order 3') and ``mismatch`` ('' or e.g.
-    'mu=1.2': the plant's parameters that differ from the data's system)."""
+    'mu=1.2': the plant's parameters that differ from the data's system), ``estimator`` (identification.estimator:
+    'ls' or 'iv') and ``sim_noise_per_x0`` (the closed loop's noise drawn per initial condition, sim.noise.per_x0)."""
     noise = summary.get("noise") or {}
     rms = noise.get("data_rms")
     mism = ((summary.get("plant") or {}).get("mismatch")) or {}
@@ -211,7 +213,9 @@ def _conditions(summary: dict) -> dict:
             "data_noise": _relative(noise.get("data_noise_std"), rms),
             "smoothing": noise.get("data_smoothing") or "none",
             "sim_noise": _relative(noise.get("sim_noise_std"), rms),
-            "mismatch": ";".join(f"{k}={d['plant']:g}" for k, d in sorted(mism.items()))}
+            "mismatch": ";".join(f"{k}={d['plant']:g}" for k, d in sorted(mism.items())),
+            "estimator": (summary.get("model") or {}).get("estimator", "ls"),
+            "sim_noise_per_x0": bool(noise.get("sim_noise_per_x0", False))}
 
 
 def _job_folders(root: Path) -> list[Path]:

@@ -144,7 +144,11 @@ def build_data_smoothing(cfg: Mapping[str, Any]):
 
 def build_data_noise(cfg: Mapping[str, Any], n: int):
     """The NoiseConfig of ``data.noise`` (none if absent) for ``n`` states."""
-    return build_noise(dict(_plain(cfg)).get("noise"), "data.noise", n)
+    noise = build_noise(dict(_plain(cfg)).get("noise"), "data.noise", n)
+    if noise is not None and getattr(noise, "per_x0", False):
+        raise ConfigError("data.noise.per_x0=true: only the closed loop's noise has an initial condition; use "
+                          "sim.noise.per_x0=true, or set data.noise.seed")
+    return noise
 
 
 def build_plant(nominal, system_cfg: Mapping[str, Any], sim_cfg: Mapping[str, Any]):

@@ -83,7 +83,26 @@ def config_dict(cfg: Any) -> dict:
         del out["plant"]
     if isinstance(out.get("sim"), dict) and out["sim"].get("realtime") is False:   # unpaced: the hash as before
         out["sim"] = {k: v for k, v in out["sim"].items() if k != "realtime"}
+    for path, default in _LATER_KEYS.items():   # at their defaults: the config and its hash as before
+        out = _drop_default(out, path, default)
     return out
+
+
+def _drop_default(d: dict, path: tuple[str, ...], default) -> dict:
+    """``d`` without the key at ``path`` if it holds ``default`` (of the same type); copies, never edits."""
+    head, *rest = path
+    if not isinstance(d, dict) or head not in d:
+        return d
+    if rest:
+        return {**d, head: _drop_default(d[head], tuple(rest), default)}
+    value = d[head]
+    return {k: v for k, v in d.items() if k != head} if value == default and type(value) is type(default) else d
+
+
+# keys added after runs were logged, with the default that leaves a config's hash as it was (issue 34; the model
+# cache keys on the identification code's digest as well, so a changed default still re-identifies)
+_LATER_KEYS = {("identification", "fix_equilibrium"): None, ("identification", "estimator"): "ls",
+               ("identification", "iv_lag"): 1, ("sim", "noise", "per_x0"): False, ("data", "noise", "per_x0"): False}
 
 
 def _default_plant() -> dict:
@@ -108,7 +127,9 @@ def _perturbation(system, plant_params: dict, model, sim_cfg) -> dict:
     dist_std = sim_cfg.disturbance.sigma(system.m) if sim_cfg.disturbance.active else np.zeros(system.m)
     return {"noise": {"data_rms": rms, "data_noise_std": model.report.get("data_noise_std"),
                       "data_smoothing": model.report.get("data_smoothing", "none"),
-                      "sim_noise_std": sim_std.tolist(), "disturbance_std": dist_std.tolist()},
+                      "sim_noise_std": sim_std.tolist(), "disturbance_std": dist_std.tolist(),
+                      # a draw per x0 (sim.noise.per_x0): written only when set, so older logs stay as they were
+                      **({"sim_noise_per_x0": True} if sim_cfg.noise.per_x0 else {})},
             "plant": {"params": plant_params,
                       "mismatch": {k: {"nominal": getattr(system, k), "plant": v} for k, v in plant_params.items()
                                    if getattr(system, k) != v}}}
@@ -329,6 +350,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
         "x0": x0.tolist(),
         "metrics": mdict,
         "model": {"k": model.k, "inputs": model.report.get("inputs", "projection"),
+                  "estimator": model.report.get("estimator", "ls"),
+                  "prediction_vs_fit": model.report.get("prediction_vs_fit"),
                   "cond_phi_x": model.report["cond_phi_x"],
                   "prediction_error": model.report["prediction_error"],
                   "input_projection_residual": model.report["input_projection_residual"],

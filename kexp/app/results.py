@@ -31,7 +31,8 @@ from ..cli import Parser, emit
 from .aggregate import ReportError, aggregate
 
 REST = ["status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms", "max_abs_u",
-        "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing", "sim_noise", "mismatch"]
+        "fallbacks", "certificate", "controller", "inputs", "data_noise", "smoothing", "sim_noise", "mismatch",
+        "estimator", "sim_noise_per_x0"]
 """The columns after the initial condition's x0_1 … x0_n, in collect's order."""
 
 
@@ -177,7 +178,8 @@ def collect(sweep_dir: str | Path, name: str, out_dir: str | Path) -> Path:
             x0 = r["x0"] or [None] * n
             vals = [*x0, r["status"], r["success"], r["cost"], r["settling_time_s"], r["solve_median_ms"],
                     r["solve_p99_ms"], r["max_abs_u"], r["fallbacks"], r["certificate"], r["controller"], r["inputs"],
-                    r["data_noise"], r["smoothing"], r["sim_noise"], r["mismatch"]]
+                    r["data_noise"], r["smoothing"], r["sim_noise"], r["mismatch"], r["estimator"],
+                    r["sim_noise_per_x0"]]
             w.writerow(["" if v is None else (f"{v:.10g}" if isinstance(v, float) else v) for v in vals])
     return out
 

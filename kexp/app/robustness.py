@@ -5,7 +5,9 @@ A CSV's conditions are read from its columns (written by ``kexp-results collect`
 ``controller``, ``inputs`` (projection on the known G, or regression), ``sim_noise`` (measurement noise as a
 fraction of the data's RMS; the data carry the same), ``smoothing`` (the data's filter before identification:
 'raw' or 'SG <window>' in the table), ``mismatch`` (the plant's parameters that differ from the
-data's system).  CSVs written before these columns existed count as unperturbed runs with G known.  The ratio
+data's system), ``data_noise`` (when it differs from the loop's, the G column says so), ``estimator`` ('IV' in the G
+column) and ``sim_noise_per_x0`` ('per x0': each initial condition its own draw; the oracle and LQR it is
+compared with must have drawn the same way).  CSVs written before these columns existed count as unperturbed runs with G known.  The ratio
 J / J_oracle is taken per initial condition against the oracle (controller ``nmpc``) with the same noise and
 plant; the LQR (true linearisation) and the oracle know the plant, so only the LMPC is data-driven.  A system
 with no oracle under any condition (a plant with no formula) says "n/a (no oracle)".  Runs are matched by their
@@ -34,12 +36,16 @@ def _conditions(name: str, row: dict) -> tuple:
     configured = split_stem(name)[1].split("-")[0]
     controller = configured if configured not in KINDS else (row.get("controller") or configured)
     controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
-    return (controller, row.get("inputs") or "projection", round(_f(row.get("sim_noise") or 0.0), 6),
-            row.get("smoothing") or "none", row.get("mismatch") or "")
+    sim_noise = round(_f(row.get("sim_noise") or 0.0), 6)
+    data_noise = row.get("data_noise")
+    return (controller, row.get("inputs") or "projection", sim_noise, row.get("smoothing") or "none",
+            row.get("mismatch") or "", sim_noise if data_noise in ("", None) else round(_f(data_noise), 6),
+            row.get("estimator") or "ls", (row.get("sim_noise_per_x0") or "False") == "True")
 
 
 def load(paths) -> dict:
-    """{(system, controller, inputs, noise, smoothing, mismatch): (file name, {x0: (success, cost)})} over
+    """{(system, controller, inputs, noise, smoothing, mismatch, data noise, estimator, noise per x0): (file name,
+    {x0: (success, cost)})} over
     ``paths``;
     raises :class:`ReportError` when a CSV is not a results CSV (:func:`kexp.app.results.read_csv`), mixes
     conditions or two CSVs hold the same ones."""
@@ -94,19 +100,20 @@ def table(paths) -> str:
     lines = ["| system | G | noise σ | plant | LMPC success | LMPC J/J* median / worst | LQR success "
              "| LQR J/J* median / worst | oracle success |",
              "|---|---|---:|---|---:|---:|---:|---:|---:|"]
-    conds = sorted({(s, i, n, sm, m) for (s, c, i, n, sm, m) in data if c == "lmpc"},
-                   key=lambda k: (k[0], k[4] != "", k[1] != "projection", k[2], k[3] != "none", k[3], k[4]))
+    conds = sorted({(s, *rest) for (s, c, *rest) in data if c == "lmpc"},
+                   key=lambda k: (k[0], k[4] != "", k[1] != "projection", k[7], k[2], k[5], k[3] != "none", k[3],
+                                  k[6], k[4]))
 
-    def base(system, controller, noise, mism):  # the true-model references ignore how the data were treated
+    def base(system, controller, noise, mism, per_x0):   # the true-model references ignore the data's treatment
         return next((v[1] for k, v in data.items() if k[:2] == (system, controller) and k[3] == noise
-                     and k[5] == mism), None)
+                     and k[5] == mism and k[8] == per_x0), None)
 
-    for system, inputs, noise, smooth, mism in conds:
-        lmpc = data[(system, "lmpc", inputs, noise, smooth, mism)][1]
-        oracle, lqr = base(system, "nmpc", noise, mism), base(system, "lqr", noise, mism)
+    for system, inputs, noise, smooth, mism, data_noise, estimator, per_x0 in conds:
+        lmpc = data[(system, "lmpc", inputs, noise, smooth, mism, data_noise, estimator, per_x0)][1]
+        oracle, lqr = base(system, "nmpc", noise, mism, per_x0), base(system, "lqr", noise, mism, per_x0)
         mark = ""
         if oracle is None and noise != 0:  # no oracle under this noise: the noise-free one on the same plant
-            oracle = base(system, "nmpc", 0.0, mism)
+            oracle = base(system, "nmpc", 0.0, mism, False)
             mark = " †" if oracle is not None else ""
         # no oracle under any condition: a plant with no formula; else none under this row's (e.g. its plant)
         none = "no oracle" if any(k[:2] == (system, "nmpc") for k in data) else NO_ORACLE
@@ -116,8 +123,11 @@ def table(paths) -> str:
         os_ = ("n/a" if none == NO_ORACLE else "–" if oracle is None or mark
                else f"{sum(s for s, _ in oracle.values())}/{len(oracle)}")
         g = "known" if inputs == "projection" else "regressed"
-        if noise != 0:
+        if data_noise != 0:   # the data's noise: the loop's unless the row says otherwise
             sm = smooth.replace("Savitzky–Golay, window ", "SG ").split(",")[0]
-            g += f", data {'raw' if smooth == 'none' else sm}"
-        lines.append(f"| {system} | {g} | {_noise(noise)} | {_plant(mism)} | {ls} | {lr} | {qs} | {qr} | {os_} |")
+            g += f", data {'raw' if smooth == 'none' else sm}" + ("" if data_noise == noise else f" {_noise(data_noise)}")
+        if estimator != "ls":
+            g += f", {estimator.upper()}"
+        sigma = _noise(noise) + (" per x0" if per_x0 and noise != 0 else "")
+        lines.append(f"| {system} | {g} | {sigma} | {_plant(mism)} | {ls} | {lr} | {qs} | {qr} | {os_} |")
     return "\n".join(lines)

@@ -29,13 +29,18 @@ DATA_NOISE, MEASUREMENT_NOISE, DISTURBANCE = "data.noise", "sim.noise", "sim.dis
 _STREAM_IDS = {DATA_NOISE: 1, MEASUREMENT_NOISE: 2, DISTURBANCE: 3}
 
 
-def noise_rng(seed: int, purpose: str) -> np.random.Generator:
+def noise_rng(seed: int, purpose: str, x0=None) -> np.random.Generator:
     """The random generator of ``purpose`` (:data:`DATA_NOISE`, :data:`MEASUREMENT_NOISE` or :data:`DISTURBANCE`)
     for ``seed`` (an int >= 0): ``default_rng(SeedSequence(seed, spawn_key=(id,)))`` with one id per purpose, so
     that streams of different purposes are independent whatever their seeds, and one purpose's stream is the same
-    for the same seed in every run."""
+    for the same seed in every run.  ``x0`` (the closed loop's initial state, for ``noise.per_x0``): the x0's
+    float64 bits join the spawn key, so every initial condition of a sweep draws its own stream, reproducible from
+    the run's config alone."""
     require_seed(seed, f"{purpose}.seed")
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_STREAM_IDS[purpose],)))
+    key = (_STREAM_IDS[purpose],)
+    if x0 is not None:
+        key += tuple(int(w) for w in np.ascontiguousarray(x0, dtype=np.float64).reshape(-1).view(np.uint64))
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
 
 
 def _check_std(std: Any, where: str) -> None:
@@ -66,12 +71,14 @@ def _std_vector(std: Any, n: int, where: str, per: str) -> np.ndarray:
 class NoiseConfig:
     """Measurement noise (frozen): ``std`` a number >= 0 or one per state (a list); ``relative`` true: a fraction
     of the data's RMS per state, false: absolute state units; ``seed`` of its stream (:func:`noise_rng`).
-    ``std`` = 0: none.
+    ``std`` = 0: none.  ``per_x0`` (the closed loop's noise only): each initial condition draws its own stream
+    (:func:`noise_rng` with x0), so a sweep over 100 x0 measures 100 noise draws, not one draw 100 times.
     Raises :class:`~kexp.errors.ConfigError` for a negative or non-finite std or a non-integer seed."""
 
     std: Any = 0.0
     relative: bool = True
     seed: int = 0
+    per_x0: bool = False
 
     def __post_init__(self):
         if isinstance(self.std, list):
@@ -80,6 +87,8 @@ class NoiseConfig:
         if not isinstance(self.relative, bool):
             raise ConfigError(f"noise.relative={self.relative!r}: expected true or false")
         require_seed(self.seed, "noise.seed")
+        if not isinstance(self.per_x0, bool):
+            raise ConfigError(f"noise.per_x0={self.per_x0!r}: expected true or false")
 
     @property
     def active(self) -> bool:

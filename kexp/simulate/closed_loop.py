@@ -257,7 +257,8 @@ def closed_loop(system, controller, x0, config: SimConfig = SimConfig(), *, mode
     status, message = "completed", ""
     sigma_v = config.noise.sigma(system.n, noise_scale) if config.noise.active else None
     sigma_w = config.disturbance.sigma(system.m) if config.disturbance.active else None
-    rng_v = noise_rng(config.noise.seed, MEASUREMENT_NOISE)   # streams independent of each other and of the data's
+    rng_v = noise_rng(config.noise.seed, MEASUREMENT_NOISE,   # streams independent of each other and of the data's
+                      x0 if config.noise.per_x0 else None)
     rng_w = noise_rng(config.disturbance.seed, DISTURBANCE)
     controller.reset()
     if plant is None:
