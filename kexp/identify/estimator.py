@@ -31,16 +31,24 @@ def _dt(dt) -> float:
     return float(dt)
 
 
-def _trajectories(value, what: str, width_key: str) -> list[np.ndarray]:
-    """A (T, w) array, a 3-D (n_traj, T, w) array or a list of (T_i, w) arrays → a list of float (T_i, w)."""
+def _trajectories(value, what: str, width_key: str, many: bool | None = None) -> tuple[list[np.ndarray], bool]:
+    """(a list of float (T_i, w), whether ``value`` held several trajectories) of a (T, w) array, a 3-D (n_traj, T,
+    w) array or a list of (T_i, w) arrays; ``many``: as the states were given (inputs of m = 1 may be (T_i,))."""
+    def trajectory_list(v) -> bool:   # a list of (T, w) arrays; a list of rows is one trajectory
+        try:
+            return isinstance(v, (list, tuple)) and len(v) > 0 and np.ndim(v[0]) >= 2
+        except ValueError:   # a ragged first element: reported below
+            return True
     if isinstance(value, np.ndarray) and value.ndim == 3:
-        value = list(value)
-    items = list(value) if isinstance(value, (list, tuple)) else [value]
+        many = True
+    elif many is None or not isinstance(value, (list, tuple)):
+        many = trajectory_list(value)
+    items = list(value) if many else [value]
     if not items:
         raise DataError(f"kexp.fit: {what} is empty; give one trajectory (T, {width_key}) or a list of them")
     out = []
     for i, a in enumerate(items):
-        name = what if len(items) == 1 and not isinstance(value, (list, tuple)) else f"{what}[{i}]"
+        name = f"{what}[{i}]" if many else what
         try:
             arr = np.asarray(a, dtype=float)
         except (TypeError, ValueError):
@@ -61,7 +69,7 @@ def _trajectories(value, what: str, width_key: str) -> list[np.ndarray]:
     if len(widths) > 1:
         raise DataError(f"kexp.fit: the trajectories of {what} have {sorted(widths)} columns; give every one with the "
                         f"same {width_key}")
-    return out
+    return out, many
 
 
 def arrays_dataset(X, U=None, *, dt: float, name: str = DATA_SYSTEM):
@@ -69,14 +77,14 @@ def arrays_dataset(X, U=None, *, dt: float, name: str = DATA_SYSTEM):
     lengths padded at the end with masked samples, as recorded runs are (:mod:`kexp.data.files`)."""
     from ..data.dataset import DataReport, Dataset
     dt = _dt(dt)
-    xs = _trajectories(X, "X", "n")
+    xs, many = _trajectories(X, "X", "n")
     for i, x in enumerate(xs):
         if x.shape[0] < 2:
             raise DataError(f"kexp.fit: X{'' if len(xs) == 1 else f'[{i}]'} has {x.shape[0]} sample(s); a trajectory "
                             "needs at least 2")
     us = None
     if U is not None:
-        us = _trajectories(U, "U", "m")
+        us, _ = _trajectories(U, "U", "m", many)
         if len(us) != len(xs):
             raise DataError(f"kexp.fit: {len(xs)} trajectories in X but {len(us)} in U; give one input array per "
                             "trajectory")
