@@ -17,7 +17,7 @@ from .parse import npz_headers, read_csv
 @dataclass(frozen=True)
 class RunLayout:
     """Of the first run at ``path``: ``n`` states, ``m`` inputs (0: no input column or array), ``dt`` its sample
-    spacing (the median of its time steps; None if it has fewer than 2 finite times), ``system`` the system a
+    spacing (the median of its time steps to 12 significant digits; None if it has fewer than 2 finite times), ``system`` the system a
     ``run.mcap`` was recorded with (None for NPZ and CSV), ``first`` the file read."""
 
     n: int
@@ -30,7 +30,7 @@ class RunLayout:
 def _spacing(t) -> float | None:
     d = np.diff(np.asarray(t, float))
     d = d[np.isfinite(d)]
-    return float(np.median(d)) if d.size else None
+    return float(f"{np.median(d):.12g}") if d.size else None   # 0.01, not 0.010000000000000009 from t's rounding
 
 
 def _columns(f: Path, header: list[str], prefix: str) -> int:
