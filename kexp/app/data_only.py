@@ -84,6 +84,18 @@ def check_data_stages(system: DataSystem, data_cfg, ident_cfg, spec) -> None:
                           "(use controller=lmpc, model_lqr, or lqr with a plant)")
 
 
+def identified_metrics(chash: str, system, model_info: dict, noise: dict, clf, versions: dict, lock: dict, cache,
+                       model_file: str) -> dict:
+    """summary.json of a run that stopped after the certificate (status :data:`STATUS`, completed): the model,
+    the CLF and its certificate, the data noise, versions, lock and cache as a looped run's; no "metrics"."""
+    return {"status": STATUS, "completed": True, "message": STOP_LINE, "config_hash": chash, "system": system.name,
+            "model": model_info, "noise": noise, "plant": {"kind": "none", "id": None, "versions": {}},
+            "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
+            "versions": versions, "lock": lock,
+            "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
+            "files": {"model": model_file}}
+
+
 def job_line(num: int, metrics: dict, out_dir) -> str:
     """A sweep job's line for a run that stopped after the certificate."""
     return (f"#{num} IDENTIFIED (no plant: no closed loop): k = {metrics['model']['k']}, CLF "

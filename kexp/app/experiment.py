@@ -34,7 +34,8 @@ from .build import (build_clf, build_controller, build_controller_spec, build_da
                     check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
                     system_settings)
 from .cache import Cache, clf_key, model_key
-from .data_only import STATUS, STOP_LINE, build_data_system, check_data_stages, data_plant, is_data_system
+from .data_only import (STOP_LINE, build_data_system, check_data_stages, data_plant, identified_metrics,
+                        is_data_system)
 from ..identify.datasystem import DataSystem
 from ..simulate import SimConfig
 from .faults import OutputError, create_exclusive, fault_message, write_json, writing
@@ -275,18 +276,10 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     phase("clf_s")
     if not looped:   # system=data without a plant: the model, its report and the certificate are the run
         echo(clf.summary())
-        metrics = {"status": STATUS, "completed": True, "message": STOP_LINE, "config_hash": chash,
-                   "system": system.name, "model": _model_info(model), "noise": perturbation["noise"],
-                   "plant": {"kind": "none", "id": None, "versions": {}},
-                   "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat,
-                           "certificate": clf.certificate.to_dict()},
-                   "versions": _versions(), "lock": lock_info().to_dict(),
-                   "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits,
-                             "misses": cache.misses},
-                   "files": {"model": model_path.name}}
+        metrics = identified_metrics(chash, system, _model_info(model), perturbation["noise"], clf, _versions(),
+                                     lock_info().to_dict(), cache, model_path.name)
         phase("finish_s")
-        metrics["timing"] = phases
-        metrics["wall_time_s"] = mark[0] - t0
+        metrics.update(timing=phases, wall_time_s=mark[0] - t0)
         write_json(summary_path, plain(metrics))
         echo(f"result: identified and certified, no closed loop (no plant): k = {model.k}, CLF {clf.status}")
         echo(f"files: {out_dir.resolve()} (model.npz, summary.json)")
