@@ -204,3 +204,20 @@ def test_import_kexp_stays_lazy():
     code = "import sys, kexp; print('kexp.identify.estimator' in sys.modules, 'numpy' in sys.modules, callable(kexp.fit))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["False", "False", "True"]
+
+
+def test_identify_without_a_system_class():
+    """identify(None, …) on unforced data: a drift-only model (m = 0), G never asked for; a DataSystem that
+    declares an input but has no G is refused in one line where the projection would need G."""
+    from kexp.identify.datasystem import DataSystem
+    vdp = make_system("vanderpol")
+    ds = collect(vdp, Box(12, -2.0, 2.0), DataConfig(T=2.0))
+    free = identify(None, ds, Monomials(2, 3))
+    ref = identify(vdp, ds, Monomials(2, 3))   # the same drift, with the class (B projected from its G)
+    assert free.m == 0 and ref.m == 1 and free.system == "vanderpol"
+    for a in ("Lambda", "C", "eigenvalues"):   # the QR of [Φ_X | Φ_Y] vs [Φ_X | Φ_Y | L_GΦ]: equal to rounding
+        want = getattr(ref, a)
+        assert np.max(np.abs(getattr(free, a) - want)) <= 1e-10 * np.max(np.abs(want)), a
+    with pytest.raises(ConfigError) as exc:
+        identify(DataSystem(label="vanderpol", n_states=2, n_inputs=1), ds, Monomials(2, 3))
+    assert "G is unknown; identify from forced runs" in _one_line(exc)
