@@ -73,7 +73,8 @@ def test_the_command_identifies_certifies_and_stops_without_a_plant(runs, tmp_pa
 @pytest.mark.parametrize("extra,fragment", [
     ([], "system=data: G is unknown, so B cannot be projected from it: set identification.inputs=regression"),
     (["identification.inputs=regression", "data.source.kind=simulate"], "set data.source.kind=files"),
-    (["identification.inputs=regression", "controller=nmpc"], "controller=nmpc (the true-model oracle) needs a formula"),
+    (["identification.inputs=regression", "controller=nmpc"], "controller=nmpc (the true-model oracle) needs a "
+                                                              "formula"),
     (["identification.inputs=regression", "controller=lqr", "controller.linearisation=formula"],
      "controller.linearisation=formula needs F and G"),
     (["identification.inputs=regression", "data.pairs=euler"], "data.pairs=euler needs F"),
@@ -108,7 +109,9 @@ def test_with_a_plant_the_loop_runs(runs, tmp_path):
     assert STOP_LINE not in lines
     assert metrics["status"] == "completed" and metrics["plant"]["kind"] == "python"
     assert metrics["metrics"]["final_error"] < np.hypot(0.7, 0.5)   # h pulls x toward 0 within 0.5 s
-    assert (tmp_path / "run.mcap").exists()
+    from kexp.data.layout import run_layout   # its log is a recorded run of system 'data': n, m, dt read back
+    layout = run_layout(tmp_path / "run.mcap")
+    assert (layout.n, layout.m, layout.dt, layout.system) == (2, 1, 0.01, "data")
 
 
 def test_a_plant_with_other_dimensions_is_refused(tmp_path):

@@ -201,7 +201,8 @@ def test_a_folder_without_runs_is_one_line(tmp_path):
 
 
 def test_import_kexp_stays_lazy():
-    code = "import sys, kexp; print('kexp.identify.estimator' in sys.modules, 'numpy' in sys.modules, callable(kexp.fit))"
+    code = ("import sys, kexp; "
+            "print('kexp.identify.estimator' in sys.modules, 'numpy' in sys.modules, callable(kexp.fit))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["False", "False", "True"]
 

@@ -17,8 +17,8 @@ from .parse import npz_headers, read_csv
 @dataclass(frozen=True)
 class RunLayout:
     """Of the first run at ``path``: ``n`` states, ``m`` inputs (0: no input column or array), ``dt`` its sample
-    spacing (the median of its time steps to 12 significant digits; None if it has fewer than 2 finite times), ``system`` the system a
-    ``run.mcap`` was recorded with (None for NPZ and CSV), ``first`` the file read."""
+    spacing (the median of its time steps to 12 significant digits; None if it has fewer than 2 finite times),
+    ``system`` the system a ``run.mcap`` was recorded with (None for NPZ and CSV), ``first`` the file read."""
 
     n: int
     m: int
@@ -74,5 +74,6 @@ def run_layout(path, format: str = "auto") -> RunLayout:
     config = log.one("/config")
     system = ((config or {}).get("config") or {}).get("system") if isinstance(config, dict) else None
     name = system.get("name") if isinstance(system, dict) else None
-    return RunLayout(width(steps[0].get("x")), width(steps[0].get("u")),
-                     _spacing([s["t"] if is_number(s.get("t")) else np.nan for s in steps]), name if isinstance(name, str) else None, f)
+    times = [s["t"] if is_number(s.get("t")) else np.nan for s in steps]
+    return RunLayout(width(steps[0].get("x")), width(steps[0].get("u")), _spacing(times),
+                     name if isinstance(name, str) else None, f)
