@@ -19,3 +19,18 @@ def _version() -> str:
 
 
 __version__ = _version()
+
+_LAZY = {"fit": "kexp.identify.estimator", "FittedModel": "kexp.identify.estimator"}
+
+
+def __getattr__(name: str):
+    """``kexp.fit`` and ``kexp.FittedModel`` (kexp.identify.estimator), imported on first use so that ``import
+    kexp`` stays fast."""
+    if name in _LAZY:
+        import importlib
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'kexp' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_LAZY))

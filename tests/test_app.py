@@ -32,13 +32,20 @@ NEEDS = {("plant", "python"): ["plant.target=plant_rigs:VdpRig"],
 
 
 @pytest.mark.parametrize("group,option", [(g, o) for g, opts in GROUPS.items() for o in opts])
-def test_every_config_option_composes_and_builds(group, option):
+def test_every_config_option_composes_and_builds(group, option, tmp_path):
     from kexp.app.build import (build_clf, build_data, build_dictionary, build_identification, build_sim,
                                 build_system)
     from kexp.app.build import build_controller_spec, build_external_plant, build_logging, build_plant_config
-    cfg = _compose([f"{group}={option}", *NEEDS.get((group, option), [])])
+    if (group, option) == ("system", "data"):   # a system known from recorded runs: one run (t, x1, x2, u1)
+        (tmp_path / "run.csv").write_text("t,x1,x2,u1\n0,1,0,0.5\n0.01,1,0.01,\n")
+    cfg = _compose([f"{group}={option}", *NEEDS.get((group, option), []),
+                    *(["data.source.kind=files", f"data.source.path={tmp_path}"] if option == "data" else [])])
     plant_cfg = build_plant_config(cfg.plant)
-    if plant_cfg.external:
+    if (group, option) == ("system", "data"):
+        from kexp.app.data_only import build_data_system
+        system = build_data_system(cfg.system, build_data(cfg.data)[1])
+        assert (system.n, system.m) == (2, 1)
+    elif plant_cfg.external:
         plant, system = build_external_plant(plant_cfg, cfg.system, cfg.sim)
         plant.close()
     else:
@@ -54,7 +61,7 @@ def test_every_config_option_composes_and_builds(group, option):
 
 def test_the_option_list_is_conf_s():
     """The parametrisation above reads conf/: the groups and options a user sees (README) are all there."""
-    assert GROUPS["system"] == ["cart_pendulum", "duffing", "linear", "pendulum", "plant", "slow_manifold",
+    assert GROUPS["system"] == ["cart_pendulum", "data", "duffing", "linear", "pendulum", "plant", "slow_manifold",
                                 "vanderpol"]
     assert GROUPS["plant"] == ["gymnasium", "integrator", "python"]
     assert GROUPS["controller"] == ["lie_gain", "lmpc", "lqr", "model_lqr", "nmpc", "sontag"]

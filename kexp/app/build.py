@@ -91,6 +91,9 @@ def build_system(cfg: Mapping[str, Any]):
     if settings["name"] == PLANT_SYSTEM:
         raise ConfigError("system=plant is the system of an external plant: set plant=gymnasium (plant.env_id=…) "
                           "or plant=python (plant.target=module:Class)")
+    if settings["name"] == "data":   # kexp.app.data_only.DATA_SYSTEM: n, m come from the recorded runs
+        raise ConfigError("system=data is known only from its recorded runs: it is built from data.source "
+                          "(kexp.app.data_only.build_data_system)")
     return make_system(settings["name"], settings["params"])
 
 

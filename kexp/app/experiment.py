@@ -34,6 +34,10 @@ from .build import (build_clf, build_controller, build_controller_spec, build_da
                     check_data_budget, check_file_data, check_memory_budget, dictionary_size, read_data_files,
                     system_settings)
 from .cache import Cache, clf_key, model_key
+from .data_only import (STOP_LINE, build_data_system, check_data_stages, data_plant, identified_metrics,
+                        is_data_system)
+from ..identify.datasystem import DataSystem
+from ..simulate import SimConfig
 from .faults import OutputError, create_exclusive, fault_message, write_json, writing
 from .run_folder import RunFolderError, run_files
 from .lock import installed_version, lock_info
@@ -186,7 +190,13 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     # every config section is validated before the long computations start
     plant_cfg = build_plant_config(cfg.get("plant"))
     ext_plant = None
-    if plant_cfg.external:   # a Gymnasium environment or a user's class: built (and checked) first, it gives n, m
+    data_only = is_data_system(cfg_dict["system"])
+    if data_only:   # system=data: n, m from the recorded runs; a loop only on an external plant (kexp.app.data_only)
+        system = build_data_system(cfg_dict["system"], build_data(cfg["data"])[1])
+        if plant_cfg.external:
+            ext_plant = data_plant(plant_cfg, system, cfg["sim"])
+            stack.callback(ext_plant.close)
+    elif plant_cfg.external:   # a Gymnasium environment or a user's class: built (and checked) first, it gives n, m
         ext_plant, system = build_external_plant(plant_cfg, cfg_dict["system"], cfg["sim"])
         stack.callback(ext_plant.close)
     else:
@@ -195,21 +205,29 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     ident_cfg = build_identification(cfg["identification"])
     spec = build_controller_spec(cfg["controller"])
     _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec)
+    looped = not data_only or ext_plant is not None
+    if not looped:
+        echo(STOP_LINE)
     # recorded runs (data.source.kind=files) are read and checked now; their bounding box is the data region
     file_data = read_data_files(system, data_cfg) if data_cfg.source.kind == "files" else None
     clf_cfg = build_clf(cfg["clf"])
     data_noise = build_data_noise(cfg["data"], system.n)
     data_smooth = build_data_smoothing(cfg["data"])
-    sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt,
-                                       sampler if file_data is None else data_bounds(file_data))
-    if ext_plant is None:
-        plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
-    else:   # the baselines that need a model of the plant get the system (a formula, or the plant's n, m, x_eq)
+    if looped:
+        sim_cfg, x0, open_loop = build_sim(cfg["sim"], system, data_cfg.dt,
+                                           sampler if file_data is None else data_bounds(file_data))
+    else:   # no closed loop: the sim section is not used (its defaults: no closed-loop noise in the summary)
+        sim_cfg, x0, open_loop = SimConfig(dt=data_cfg.dt), None, False
+    if ext_plant is not None:   # the baselines that need a model of the plant get the system (a formula, or n, m, x_eq)
         plant, plant_params = system, {}
         spec = narrow_bounds(spec, ext_plant, echo)
+    elif looped:
+        plant, plant_params = build_plant(system, cfg_dict["system"], cfg["sim"])
+    else:
+        plant, plant_params = None, {}
     plant_info = _plant_identity(ext_plant, plant_cfg, plant)   # kind, id, Δ, versions: logged and keyed
     log_cfg = build_logging(cfg.get("logging") or {})
-    if log_cfg["mcap"] and log_cfg["writer"] == "process":
+    if log_cfg["mcap"] and log_cfg["writer"] == "process" and looped:
         prestart_writer()   # the writer process's imports run on the other core during data, identification, CLF
     cache_cfg = dict(cfg.get("cache") or {})
     cache = Cache(cache_cfg.get("dir"), enabled=bool(cache_cfg.get("enabled", True)),
@@ -221,7 +239,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
         check_file_data(file_data, ident_cfg, k_max)
     check_memory_budget(spec, k_max, system.m)
     check_sdp_budget(clf_cfg, k_max)   # an SDP CLF over the memory budget: refused before any data
-    check_run_size(sim_cfg, system, k_max, sampler if file_data is None else None, data_cfg)
+    if looped:
+        check_run_size(sim_cfg, system, k_max, sampler if file_data is None else None, data_cfg)
     summary_path = out_dir / "summary.json"
     create_exclusive(summary_path, json.dumps({"status": "running", "completed": False, "config_hash": chash},
                                               indent=2))
@@ -276,6 +295,16 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
                                law_params=spec.law_params, progress=echo),
         save_clf, lambda p: load_clf(p, model, clf_cfg))
     phase("clf_s")
+    if not looped:   # system=data without a plant: the model, its report and the certificate are the run
+        echo(clf.summary())
+        metrics = identified_metrics(chash, system, _model_info(model), perturbation["noise"], clf, _versions(),
+                                     lock_info().to_dict(), cache, model_path.name)
+        phase("finish_s")
+        metrics.update(timing=phases, wall_time_s=mark[0] - t0)
+        write_json(summary_path, plain(metrics))
+        echo(f"result: identified and certified, no closed loop (no plant): k = {model.k}, CLF {clf.status}")
+        echo(f"files: {out_dir.resolve()} (model.npz, summary.json)")
+        return metrics
     # the true-model baselines (LQR, NMPC oracle) know the plant they control, mismatch included
     controller = build_controller(spec, plant, model, clf,
                                   prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0,
@@ -349,13 +378,7 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
         "controller": getattr(controller, "name", type(controller).__name__),
         "x0": x0.tolist(),
         "metrics": mdict,
-        "model": {"k": model.k, "inputs": model.report.get("inputs", "projection"),
-                  "estimator": model.report.get("estimator", "ls"),
-                  "prediction_vs_fit": model.report.get("prediction_vs_fit"),
-                  "cond_phi_x": model.report["cond_phi_x"],
-                  "prediction_error": model.report["prediction_error"],
-                  "input_projection_residual": model.report["input_projection_residual"],
-                  "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]},
+        "model": _model_info(model),
         "noise": perturbation["noise"],
         "plant": {**perturbation["plant"], **plant_info},
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
@@ -406,6 +429,16 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     return metrics
 
 
+def _model_info(model) -> dict:
+    """summary.json's "model": k, how B was found, the fit's conditioning and prediction errors, the eigenvalues."""
+    return {"k": model.k, "inputs": model.report.get("inputs", "projection"),
+            "estimator": model.report.get("estimator", "ls"), "prediction_vs_fit": model.report.get("prediction_vs_fit"),
+            "cond_phi_x": model.report["cond_phi_x"],
+            "prediction_error": model.report["prediction_error"],
+            "input_projection_residual": model.report["input_projection_residual"],
+            "eigenvalues": [[float(v.real), float(v.imag)] for v in model.eigenvalues]}
+
+
 FALLBACK_WARN = 0.1   # the share of steps on the fallback h above which a run says it was mostly h
 
 
@@ -426,6 +459,8 @@ def _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec) -> None:
     from ..plants import PlantSystem, check_dt
     if ext_plant is not None:
         check_dt(ext_plant.dt, data_cfg.dt, "data.dt", ext_plant.name)
+    if isinstance(system, DataSystem):   # system=data: kexp.app.data_only
+        return check_data_stages(system, data_cfg, ident_cfg, spec)
     if not isinstance(system, PlantSystem):
         return
     name = system.name
@@ -446,7 +481,9 @@ def _check_plant_stages(system, ext_plant, data_cfg, ident_cfg, spec) -> None:
 
 
 def _plant_identity(ext_plant, plant_cfg, system) -> dict:
-    """The plant's kind, id and package versions (``/run_info``, ``summary.json``)."""
+    """The plant's kind, id and package versions (``/run_info``, ``summary.json``); ``system`` None: no plant."""
+    if ext_plant is None and system is None:
+        return {"kind": "none", "id": None, "versions": {}}
     if ext_plant is None:
         return {"kind": "integrator", "id": getattr(system, "name", None), "versions": {}}
     info = dict(ext_plant.info())

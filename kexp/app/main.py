@@ -82,6 +82,9 @@ def _warnings_only(line: str) -> None:
 def job_line(num: int, metrics: dict, out_dir: Path) -> str:
     """The one line a sweep job prints: its number (as in Hydra's "#0 : overrides" launch line), the verdict and
     the main metrics of ``run``'s result (``metrics``), and its folder ``out_dir``."""
+    if "metrics" not in metrics:   # system=data without a plant: stopped after the certificate, no loop
+        from .data_only import job_line as identified_line
+        return identified_line(num, metrics, out_dir)
     m = metrics["metrics"]
     settle = m.get("settling_time")
     settle = "inf" if settle is None or not np.isfinite(settle) else f"{settle:.2f} s"

@@ -138,7 +138,7 @@ def _select(eig, residual, cfg: IdentifyConfig) -> np.ndarray:
 
 
 @threadpool_limits.wrap(limits=1)   # one BLAS thread: the model must not depend on the machine's core count
-def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monomials,
+def identify(system: ControlAffineSystem | None, dataset: PairSource, dictionary: Monomials,
              config: IdentifyConfig = IdentifyConfig()) -> KoopmanBilinearModel:
     """Identify the bilinear Koopman model of ``system`` from the unforced ``dataset`` (a Dataset or recorded runs
     streamed from files, :class:`~kexp.data.streaming.RecordedRuns`: any :class:`~kexp.data.runs.PairSource`).
@@ -146,8 +146,13 @@ def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monom
     F is used only through the data.  With ``config.inputs='projection'`` G_i (the input fields) are taken from
     ``system`` for B_i, b_i and the data must be unforced; with 'regression' B_i, b_i are regressed from forced
     data and G is never evaluated (only ``system.n``, ``m``, ``equilibrium`` and names are read).  BLAS runs on
-    one thread here, so the model is the same whatever OPENBLAS_NUM_THREADS is (tested).
+    one thread here, so the model is the same whatever OPENBLAS_NUM_THREADS is (tested).  ``system=None``: a
+    system known only from the data (:func:`~kexp.identify.datasystem.system_of_data`: x_eq the origin; m = 0, a
+    drift-only model, for unforced data; G is never evaluated, as for any system with m = 0).
     """
+    if system is None:   # known only from its data: n, m from the data, G never evaluated (kexp.identify.datasystem)
+        from .datasystem import system_of_data
+        system = system_of_data(dataset) if hasattr(dataset, "forced") else system
     for value, kind, what in ((system, ControlAffineSystem, "system"), (dictionary, Monomials, "dictionary"),
                               (config, IdentifyConfig, "config")):
         if not isinstance(value, kind):

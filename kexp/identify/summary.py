@@ -37,6 +37,8 @@ def model_summary(model) -> str:
         if r.get("inputs") == "regression":   # G was never used: its residual is ~0 by construction, no evidence
             lines.append("Assumption 1 (L_G Ψ = BΨ): not checked (G unknown, B regressed); the input model's checks "
                          "are the lifted next-state residual above and the held-out prediction error below")
+        elif model.m == 0:   # a system known only from unforced data (kexp.fit, system=data): no input model
+            lines.append("inputs: none (m = 0: unforced data and no G, so a drift-only model)")
         else:
             lines.append("Assumption 1 (L_G Ψ = BΨ) relative residual: "
                          + ", ".join(f"{v:.2e}" for v in r["input_projection_residual"])
