@@ -1,6 +1,8 @@
 """kexp.fit: arrays or a folder of runs → a fitted model without a system class (kexp/identify/estimator.py)."""
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,16 +18,10 @@ from kexp.identify import IdentifyConfig, identify
 from kexp.identify.model import _ARRAYS
 from kexp.systems import make_system
 
-# the README's example (h-api-readme.md): arrays → model → prediction, 7 lines with the data
-EXAMPLE = """\
-import numpy as np, kexp
-from scipy.integrate import solve_ivp
-f = lambda t, x: [-0.7 * x[0], 0.4 * (x[1] - x[0] ** 2)]   # the slow manifold: ẋ1 = μx1, ẋ2 = λ(x2 − x1²)
-X = [solve_ivp(f, (0, 2), x0, t_eval=np.arange(201) * 0.01, rtol=1e-12, atol=1e-12).y.T for x0 in np.random.default_rng(0).uniform(-1, 1, (20, 2))]
-model = kexp.fit(X, dt=0.01, degree=2)
-print(np.sort(model.eigenvalues.real))             # μ = -0.7, λ = 0.4, 2μ = -1.4 among them
-x_hat = model.predict(X[0][0], steps=200)          # (201, 2)
-"""
+# the README's example ("From arrays or a folder to a model: kexp.fit"): arrays → model → prediction, 7 lines
+README = Path(__file__).resolve().parents[1] / "README.md"
+_SECTION = README.read_text(encoding="utf-8").split("### From arrays or a folder to a model: `kexp.fit`", 1)[1]
+EXAMPLE = re.findall(r"```python\n(.*?)```", _SECTION, flags=re.S)[0]
 
 MU, LAM, DT = -0.7, 0.4, 0.01
 
