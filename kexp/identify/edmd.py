@@ -137,8 +137,19 @@ class LeastSquaresFit(TriangularFacts):
         return self.R[rows:, self._block(j)]
 
     @property
+    def k_lhs(self) -> np.ndarray:
+        """(N, N) the left side of K's solve in R coordinates (least squares: r11; an IV fit: the instrument rows
+        of the regressor columns, kexp.identify.iv)."""
+        return self.r11
+
+    @property
+    def k_rhs(self) -> np.ndarray:
+        """(N, N) the right side of K's solve: Kᵀ = solve(k_lhs, k_rhs) (least squares: Φ_Y in span Φ_X)."""
+        return self.inside(0)
+
+    @property
     def K(self) -> np.ndarray:
-        return self.solve(self.r11, self.inside(0)).T
+        return self.solve(self.k_lhs, self.k_rhs).T
 
     @property
     def D(self) -> np.ndarray:

@@ -19,6 +19,7 @@ from ..systems.base import ControlAffineSystem
 from .edmd import METHODS, fit_least_squares
 from .eigen import IdentificationWarning, eigenfunctions
 from .model import KoopmanBilinearModel
+from .noise_check import check_estimator, fit_iv_source, noise_report
 from .projection import input_matrices, output_matrix_exact, output_matrix_lstsq
 from .regression import fit_bilinear
 from .quality import eigenfunction_residuals, prediction_error
@@ -41,6 +42,8 @@ class IdentifyConfig:
     'regression' (from forced data, G never evaluated; see regression.py).  input_degree: degree of the input
     monomials in the regression (3: the slope is exact to (Δ‖B‖)³).  compare_projection: with regression, also
     project with the system's G on the same eigen-coordinates and report the relative differences.
+    estimator: 'ls' (least squares) or 'iv' (instrumental variables, for noisy data: kexp.identify.iv) with the
+    sample ``iv_lag`` steps earlier as instrument.
     """
 
     method: str = "qr"
@@ -56,6 +59,8 @@ class IdentifyConfig:
     inputs: str = "projection"
     input_degree: int = 3
     compare_projection: bool = False
+    estimator: str = "ls"
+    iv_lag: int = 1
 
     def __post_init__(self):
         for key in ("rcond", "residual_horizon", "prediction_horizon", "holdout"):
@@ -91,6 +96,7 @@ class IdentifyConfig:
         require_number(self.input_degree, "identification.input_degree", integer=True)
         if not 1 <= self.input_degree <= 5:
             raise ConfigError(f"identification.input_degree={self.input_degree}: use an int in 1..5")
+        check_estimator(self.estimator, self.iv_lag)
 
 
 def _unforced_part(dataset: PairSource) -> PairSource:
@@ -167,7 +173,9 @@ def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monom
                         "leaving none to fit: lower identification.holdout (e.g. 0.2) or collect more trajectories")
     quality_data = test if test is not None else train
     lie = lambda X: dictionary.lie(X, system.input_matrix(X))  # noqa: E731
-    if regress:
+    if config.estimator == "iv":
+        fit = fit_iv_source(train, dictionary, config, lie=lie, m=system.m, regress=regress)
+    elif regress:
         fit = fit_bilinear(train.iter_pairs(config.chunk_size, with_inputs=True), dictionary.lift, m=system.m,
                            degree=config.input_degree, method=config.method, rcond=config.rcond,
                            add_constant=dictionary.constant_index is None)
@@ -248,6 +256,9 @@ def identify(system: ControlAffineSystem, dataset: PairSource, dictionary: Monom
         d = np.stack([(Z @ (B[i] - Bp[i]).T + (b[i] - bp[i])) @ C.T for i in range(system.m)])
         ref = np.stack([(Z @ Bp[i].T + bp[i]) @ C.T for i in range(system.m)])
         versus_projection["field_x"] = float(np.linalg.norm(d) / max(np.linalg.norm(ref), 1e-300))
+    report["noise"], noise_notes = noise_report(fit, config, dataset, train, quality_data, dictionary, x_eq,
+                                                system.state_names, regress=regress)
+    notes.extend(noise_notes)
     h_pred = max(1, int(round(config.prediction_horizon / dataset.dt)))
     report["prediction_error"] = {"1_step": prediction_error(model, quality_data, 1),
                                   f"{config.prediction_horizon:g}_s": prediction_error(model, quality_data, h_pred)}

@@ -71,11 +71,21 @@ class BilinearFit(TriangularFacts):
     def r_ext(self) -> np.ndarray:
         return self.R[: self.n_bar, : self.n_bar]
 
+    @property
+    def coef_lhs(self) -> np.ndarray:
+        """(P, P) the left side of coef's solve in R coordinates (least squares: the regressors' factor; an IV fit:
+        the instrument rows of the regressor columns, kexp.identify.iv)."""
+        return self.R[: self.P, : self.P]
+
+    @property
+    def coef_rhs(self) -> np.ndarray:
+        """(P, N) the right side: coef = solve(coef_lhs, coef_rhs) (least squares: φ(Y) in the regressors' span)."""
+        return self.R[: self.P, self.P:]
+
     @cached_property
     def coef(self) -> np.ndarray:
         """(P, N): φ(y) ≈ [φ̄ | u^α φ̄ …] @ coef."""
-        P = self.P
-        return self.solve(self.R[:P, :P], self.R[:P, P:])
+        return self.solve(self.coef_lhs, self.coef_rhs)
 
     @property
     def regressor_rank(self) -> int:
