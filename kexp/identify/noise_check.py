@@ -101,7 +101,7 @@ def noise_report(fit, config, dataset: PairSource, train: PairSource, quality: P
     return out, notes
 
 
-def summary_lines(noise: dict | None, state_names=None) -> list[str]:
+def summary_lines(noise: dict | None) -> list[str]:
     """The printed summary's lines for ``report['noise']`` (nothing for a report without one)."""
     if not noise:
         return []
