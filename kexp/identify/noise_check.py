@@ -73,10 +73,10 @@ def noise_report(fit, config, dataset: PairSource, train: PairSource, quality: P
                    reference={"estimator": "ls", "linearisation": _eig_list(lam_ls),
                               "complex_pairs": complex_pairs(J_ls)})
         if not out["instrument_strength"] >= WEAK_INSTRUMENT:
-            notes.append(f"weak instruments: the smallest canonical correlation between φ(x(t − {fit.lag}Δ)) and φ(x(t)) "
-                         f"is {out['instrument_strength']:.3g} < {WEAK_INSTRUMENT}, where IV eigenvalues were measured 8 "
-                         "to 50 % off: the noise is too large for this dictionary or lag; lower identification.iv_lag or "
-                         "dictionary.degree, or smooth the data (data.smooth)")
+            notes.append(f"weak instruments: the smallest canonical correlation between φ(x(t − {fit.lag}Δ)) and "
+                         f"φ(x(t)) is {out['instrument_strength']:.3g} < {WEAK_INSTRUMENT}, where IV eigenvalues were "
+                         "measured 8 to 50 % off: the noise is too large for this dictionary or lag; lower "
+                         "identification.iv_lag or dictionary.degree, or smooth the data (data.smooth)")
         return out, notes
     if not noisy:
         return out, notes
@@ -100,9 +100,9 @@ def noise_report(fit, config, dataset: PairSource, train: PairSource, quality: P
                      f"{out['reference']['instrument_strength']:.3g} < {WEAK_INSTRUMENT}): the fit's linearisation was "
                      "not checked against it")
     elif a != b:
-        notes.append(f"the least-squares linearisation at x_eq has {a} complex pair(s) (λ = {fmt_eigs(lam)}), the IV fit "
-                     f"on the same data {b} (λ = {fmt_eigs(lam_iv)}): the noise bias has {'lost' if a < b else 'gained'} "
-                     "an oscillation; use identification.estimator=iv")
+        notes.append(f"the least-squares linearisation at x_eq has {a} complex pair(s) (λ = {fmt_eigs(lam)}), the IV "
+                     f"fit on the same data {b} (λ = {fmt_eigs(lam_iv)}): the noise bias has "
+                     f"{'lost' if a < b else 'gained'} an oscillation; use identification.estimator=iv")
     return out, notes
 
 
