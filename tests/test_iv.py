@@ -183,7 +183,12 @@ def test_regressed_inputs_with_iv():
     clean = collect(s, Box(20, -1.0, 1.0), DataConfig(T=2.0, excitation=Excitation(-1.0, 1.0, 5)))
     a = identify(s, clean, SM_DICT, IdentifyConfig(inputs="regression"))
     b = identify(s, clean, SM_DICT, IdentifyConfig(inputs="regression", estimator="iv"))
-    assert np.max(np.abs(_lam(a) - _lam(b))) < 1e-8 and np.max(np.abs(a.B - b.B)) < 1e-6
+    assert np.max(np.abs(_lam(a) - _lam(b))) < 1e-8
+    # B, b depend on the eigenfunctions' normalisation (unit RMS over the pairs used: IV uses one fewer a run); the
+    # input field in x does not: measured 8e-14 apart (of 1.0), asserted 1e-9 (the matrix logarithm's path)
+    x = np.random.default_rng(0).uniform(-1, 1, (50, 2))
+    field = [(m.lift(x) @ m.B[0].T + m.b[0]) @ m.C.T for m in (a, b)]
+    assert np.max(np.abs(field[0] - field[1])) < 1e-9 and np.max(np.abs(field[0])) > 0.5
 
 
 def test_streamed_files_give_the_in_memory_iv_fit(tmp_path):
