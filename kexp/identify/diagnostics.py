@@ -14,7 +14,8 @@ relative noise (Van der Pol, degree 5, box data; 0.2 % → 2 %, 1 % → the real
 (slow manifold, μ = −0.7, λ = 0.4, 0.7 % → −1.3 %), so :data:`NOISE_WARN` = 0.1 % of the data's RMS.
 Instrument strength (Van der Pol, 80 000 pairs): with the smallest canonical correlation 0.90–0.998 the IV
 linearisation was within 3.5 %; at 0.80 8 % off, at 0.44 50 % off, at ≤ 0.40 the oscillation was lost, so
-:data:`WEAK_INSTRUMENT` = 0.8.
+:data:`WEAK_INSTRUMENT` = 0.8.  Every IV fit above 0.44 kept the oscillation (the default experiment's circle
+data at 3 %: 0.75, 0.41 ± 0.95i), none at 0.40 and below: :data:`REFERENCE_MIN` = 0.5 for the complex-pair check.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from ..data.runs import PairSource
 
 NOISE_WARN = 1e-3         # relative noise (σ̂ / RMS about x_eq) above which least squares is warned about
 WEAK_INSTRUMENT = 0.8     # smallest canonical correlation below which the IV fit is uncertain (measured below)
+REFERENCE_MIN = 0.5       # ... below which an IV reference cannot tell whether a fit lost or gained a complex pair
 _D3 = 20.0                # Σ of the squared coefficients of the third difference (1, −3, 3, −1)
 
 

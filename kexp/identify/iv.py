@@ -55,10 +55,9 @@ def _ls_factor(R: np.ndarray, skip: int) -> np.ndarray:
 def _canonical(r_zx: np.ndarray, r_xx: np.ndarray) -> np.ndarray:
     """Canonical correlations between span Z and span X (descending): the singular values of R_zx·R_xx⁻¹
     (Q_zᵀQ_x, with Φ_X = Q_x R_xx).  Directions where Φ_X is numerically rank deficient are left out."""
-    sv = sla.svdvals(r_xx)
-    if sv[0] == 0:
+    _, s, vt = np.linalg.svd(r_xx)
+    if s[0] == 0:
         return np.zeros(0)
-    u, s, vt = np.linalg.svd(r_xx)
     keep = s > 1e-12 * s[0]
     # X = Q_x R_xx = (Q_x U) S Vᵀ: orthonormal basis of span X is Φ_X V S⁻¹ on the kept directions
     basis = vt[keep].T / s[keep]

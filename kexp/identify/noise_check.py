@@ -18,7 +18,7 @@ import numpy as np
 
 from ..data.runs import PairSource, pair_chunks
 from ..errors import ConfigError, DataError, require_number
-from .diagnostics import (NOISE_WARN, WEAK_INSTRUMENT, complex_pairs, difference_noise, fmt_eigs, linearisation,
+from .diagnostics import (NOISE_WARN, REFERENCE_MIN, WEAK_INSTRUMENT, complex_pairs, difference_noise, fmt_eigs, linearisation,
                           residual_lag1)
 from .iv import ESTIMATORS, fit_bilinear_iv, fit_iv
 
@@ -112,9 +112,9 @@ def noise_report(fit, config, dataset: PairSource, train: PairSource, quality: P
                         "complex_pairs": complex_pairs(J_iv), "instrument_strength": float(cc.min()) if cc.size
                         else 0.0}
     a, b = out["complex_pairs"], out["reference"]["complex_pairs"]
-    if not out["reference"]["instrument_strength"] >= WEAK_INSTRUMENT:
-        notes.append(f"the IV reference's instruments are weak (smallest canonical correlation "
-                     f"{out['reference']['instrument_strength']:.3g} < {WEAK_INSTRUMENT}): the fit's linearisation was "
+    if not out["reference"]["instrument_strength"] >= REFERENCE_MIN:
+        notes.append(f"the IV reference's instruments are too weak (smallest canonical correlation "
+                     f"{out['reference']['instrument_strength']:.3g} < {REFERENCE_MIN}): the fit's linearisation was "
                      "not checked against it")
     elif a != b:
         notes.append(f"the least-squares linearisation at x_eq has {a} complex pair(s) (λ = {fmt_eigs(lam)}), the IV "
