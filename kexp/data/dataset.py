@@ -153,12 +153,14 @@ class Dataset:
             yield Run(self.x[i], self.valid[i], None if self.u is None else self.u[i],
                       None if self.fx is None else self.fx[i])
 
-    def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False
+    def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False, instrument_lag: int = 0
                    ) -> Iterator[tuple[np.ndarray, ...]]:
         """Yield (X, Y) chunks of at most ``chunk_size`` snapshot pairs, each (rows, n); memory O(chunk_size).
         ``with_inputs``: (X, U, Y) with U (rows, m) the input held over each pair (zeros for unforced runs of a
-        dataset with inputs; needs 'next' pairs and a dataset with ``u``).  See :func:`kexp.data.runs.pair_chunks`."""
-        return pair_chunks(self, chunk_size, with_inputs=with_inputs)
+        dataset with inputs; needs 'next' pairs and a dataset with ``u``).  ``instrument_lag`` L >= 1: the sample L
+        steps earlier on the same trajectory in front, (Z, X, Y) / (Z, X, U, Y), pairs without one left out.
+        See :func:`kexp.data.runs.pair_chunks`."""
+        return pair_chunks(self, chunk_size, with_inputs=with_inputs, instrument_lag=instrument_lag)
 
     def stats(self, center=None) -> SampleStats:
         """:class:`~kexp.data.runs.SampleStats` of the kept, finite samples (Σ(x − center)² about ``center``)."""

@@ -5,7 +5,8 @@ The in-memory :class:`~kexp.data.Dataset` and the file-backed :class:`~kexp.data
 are one; everything identification needs from the whole data set is computed here by streaming over runs, so
 memory is one run (plus O(number of runs) bookkeeping), never all samples:
 
-- :func:`pair_chunks`: snapshot pairs (X, Y) or (X, U, Y) in chunks of at most ``chunk_size`` rows;
+- :func:`pair_chunks`: snapshot pairs (X, Y) or (X, U, Y) in chunks of at most ``chunk_size`` rows, optionally
+  with a lagged instrument sample Z in front;
 - :func:`split_indices`: the trajectory split for a hold-out set;
 - :func:`window_samples`: start and end states (and inputs) of evenly subsampled windows of h valid steps;
 - :func:`strided_samples`: every k-th kept sample;
@@ -88,24 +89,40 @@ def count_pairs(run: Run, pair_rule: str) -> int:
     return int(pair_mask(run, pair_rule).sum())
 
 
-def pair_chunks(source: PairSource, chunk_size: int = 20000, *, with_inputs: bool = False
-                ) -> Iterator[tuple[np.ndarray, ...]]:
+def lagged_pair_mask(run: Run, pair_rule: str, lag: int) -> np.ndarray:
+    """:func:`pair_mask` restricted to the pairs k whose instrument sample k − ``lag`` lies in the run and is valid
+    (the first ``lag`` pairs of a run have none: dropped)."""
+    mask = pair_mask(run, pair_rule).copy()
+    mask[:lag] = False
+    mask[lag:] &= run.valid[: mask.size - lag]
+    return mask
+
+
+def pair_chunks(source: PairSource, chunk_size: int = 20000, *, with_inputs: bool = False,
+                instrument_lag: int = 0) -> Iterator[tuple[np.ndarray, ...]]:
     """(X, Y) chunks of at most ``chunk_size`` pairs, each (rows, n), run after run; ``with_inputs``: (X, U, Y)
-    with U (rows, m) the input held over each pair (needs next-sample pairs and a source with inputs)."""
+    with U (rows, m) the input held over each pair (needs next-sample pairs and a source with inputs).
+    ``instrument_lag`` L >= 1: (Z, X, Y) or (Z, X, U, Y) with Z (rows, n) the sample L steps before X on the same
+    run (an instrument whose measurement noise is independent of X's and Y's); pairs without a valid sample
+    L steps back are left out (:func:`lagged_pair_mask`)."""
     if chunk_size < 1:
         raise ConfigError(f"chunk_size={chunk_size}: use an int >= 1")
     if with_inputs and (not source.has_inputs or source.pair_rule != "next"):
         raise DataError("pairs with inputs need next-sample pairs (data.pairs=next) of a dataset with inputs")
+    lag = int(instrument_lag)
+    if lag < 0 or lag != instrument_lag:
+        raise ConfigError(f"instrument_lag={instrument_lag!r}: use an int >= 0 (0: no instrument)")
     parts, count = [], 0
     for run in source.runs():
-        k = np.flatnonzero(pair_mask(run, source.pair_rule))
+        k = np.flatnonzero(lagged_pair_mask(run, source.pair_rule, lag) if lag else pair_mask(run, source.pair_rule))
         start = 0
         while start < k.size:
             take = min(chunk_size - count, k.size - start)
             kk = k[start:start + take]
             x = run.x[kk]
             y = run.x[kk + 1] if source.pair_rule == "next" else x + source.dt * run.fx[kk]
-            parts.append((x, run.u[kk], y) if with_inputs else (x, y))
+            part = (x, run.u[kk], y) if with_inputs else (x, y)
+            parts.append((run.x[kk - lag],) + part if lag else part)
             count += take
             start += take
             if count == chunk_size:

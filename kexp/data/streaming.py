@@ -109,8 +109,8 @@ class RecordedRuns:
                 x = smooth_run(x, ok, self.smooth)[0]
             yield Run(x, ok, u, fx)
 
-    def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False):
-        return pair_chunks(self, chunk_size, with_inputs=with_inputs)
+    def iter_pairs(self, chunk_size: int = 20000, *, with_inputs: bool = False, instrument_lag: int = 0):
+        return pair_chunks(self, chunk_size, with_inputs=with_inputs, instrument_lag=instrument_lag)
 
     def subset(self, traj) -> "RecordedRuns":
         traj = np.asarray(traj, dtype=int)

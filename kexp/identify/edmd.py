@@ -139,14 +139,25 @@ class LeastSquaresFit(TriangularFacts):
         return self.R[rows:, self._block(j)]
 
     @property
+    def k_lhs(self) -> np.ndarray:
+        """(N, N) the left side of K's solve in R coordinates (least squares: r11; an IV fit: the instrument rows
+        of the regressor columns, kexp.identify.iv)."""
+        return self.r11
+
+    @property
+    def k_rhs(self) -> np.ndarray:
+        """(N, N) the right side of K's solve: Kᵀ = solve(k_lhs, k_rhs) (least squares: Φ_Y in span Φ_X)."""
+        return self.inside(0)
+
+    @property
     def K(self) -> np.ndarray:
         """(N, N) φ(y) ≈ K φ(x), with K φ(x_eq) = φ(x_eq) imposed when ``fixed_point`` is given (fixed_point.py)."""
-        return solve_fixed_point(self.solve, self.r11, self.inside(0), self.fixed_point, self.fixed_point).T
+        return solve_fixed_point(self.solve, self.k_lhs, self.k_rhs, self.fixed_point, self.fixed_point).T
 
     @property
     def raw_K(self) -> np.ndarray:
-        """(N, N) the unconstrained least-squares K (the plain EDMD fit; equal to K without ``fixed_point``)."""
-        return self.solve(self.r11, self.inside(0)).T
+        """(N, N) the unconstrained K (the plain EDMD fit, or IV's; equal to K without ``fixed_point``)."""
+        return self.solve(self.k_lhs, self.k_rhs).T
 
     @property
     def D(self) -> np.ndarray:

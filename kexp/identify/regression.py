@@ -73,6 +73,17 @@ class BilinearFit(TriangularFacts):
     def r_ext(self) -> np.ndarray:
         return self.R[: self.n_bar, : self.n_bar]
 
+    @property
+    def coef_lhs(self) -> np.ndarray:
+        """(P, P) the left side of coef's solve in R coordinates (least squares: the regressors' factor; an IV fit:
+        the instrument rows of the regressor columns, kexp.identify.iv)."""
+        return self.R[: self.P, : self.P]
+
+    @property
+    def coef_rhs(self) -> np.ndarray:
+        """(P, N) the right side: coef = solve(coef_lhs, coef_rhs) (least squares: φ(Y) in the regressors' span)."""
+        return self.R[: self.P, self.P:]
+
     @cached_property
     def coef(self) -> np.ndarray:
         """(P, N): φ(y) ≈ [φ̄ | u^α φ̄ …] @ coef; with ``fixed_point``, at u = 0 the equilibrium stays put:
@@ -83,14 +94,13 @@ class BilinearFit(TriangularFacts):
             a = np.zeros(P)
             a[: self.N] = self.fixed_point
             a[self.N: self.n_bar] = 1.0
-        return solve_fixed_point(self.solve, self.R[:P, :P], self.R[:P, P:], a,
+        return solve_fixed_point(self.solve, self.coef_lhs, self.coef_rhs, a,
                                  None if a is None else self.fixed_point)
 
     @cached_property
     def raw_coef(self) -> np.ndarray:
         """(P, N) the unconstrained regression (equal to ``coef`` without ``fixed_point``)."""
-        P = self.P
-        return self.solve(self.R[:P, :P], self.R[:P, P:])
+        return self.solve(self.coef_lhs, self.coef_rhs)
 
     @property
     def regressor_rank(self) -> int:

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .noise_check import summary_lines
+
 
 def _fmt_lam(lam: complex) -> str:
     return f"{lam.real:+.5f}" if lam.imag == 0 else f"{lam.real:+.5f} ± {abs(lam.imag):.5f}i"
@@ -55,6 +57,7 @@ def model_summary(model) -> str:
         if vs:   # what deriving the control model (eigen-coordinates, shift, truncation) costs against the raw fit
             lines.append("control model vs its raw fit (same windows, relative RMS): "
                          + ", ".join(f"{k.replace('_', ' ')} {v['model']:.2%} vs {v['fit']:.2%}" for k, v in vs.items()))
+        lines += summary_lines(r.get("noise"))
         for w in r.get("warnings", []):
             lines.append("WARNING: " + w)
     lines.append(f"{'#':>3} {'λ (continuous)':>24} {'|λ̃|':>9} {'residual':>9}  |B z| gain")
