@@ -14,7 +14,7 @@ RESULTS = Path(__file__).resolve().parents[1] / "results"
 
 
 def _write(path, costs, *, controller, inputs="projection", noise=0.0, mismatch="", success=None,
-           smoothing="none"):
+           smoothing="none", data_noise=None, estimator=None, per_x0=None):
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(COLUMNS)
@@ -23,8 +23,9 @@ def _write(path, costs, *, controller, inputs="projection", noise=0.0, mismatch=
             ok = True if success is None else success[i]
             row.update(x0_1=str(i / 10), x0_2="0.5", status="completed", success=str(ok),
                        cost="" if np.isnan(c) else repr(float(c)),
-                       controller=controller, inputs=inputs, data_noise=repr(noise), sim_noise=repr(noise),
-                       mismatch=mismatch, smoothing=smoothing)
+                       controller=controller, inputs=inputs, sim_noise=repr(noise), mismatch=mismatch,
+                       data_noise=repr(noise if data_noise is None else data_noise), smoothing=smoothing,
+                       estimator=estimator or "", sim_noise_per_x0="" if per_x0 is None else str(per_x0))
             w.writerow([row[k] for k in COLUMNS])
     return path
 
@@ -67,7 +68,24 @@ def test_old_csvs_without_columns_count_as_unperturbed(tmp_path):
     p = tmp_path / "vdp_lmpc.csv"
     with open(p, "w") as f:
         f.write("x0_1,x0_2,status,success,cost\n0.1,0.2,completed,True,2.0\n")
-    assert list(load([p])) == [("vdp", "lmpc", "projection", 0.0, "none", "")]
+    assert list(load([p])) == [("vdp", "lmpc", "projection", 0.0, "none", "", 0.0, "ls", False)]
+
+
+def test_data_noise_estimator_and_draws_per_x0_are_conditions(tmp_path):
+    """Issue 34's rows: raw 3 % data noise with 1 % loop noise drawn per x0, least squares and IV; compared with the
+    oracle and LQR whose noise was drawn per x0 as well, never with the shared-draw oracle of the same σ."""
+    o = np.array([1.0, 2.0, 4.0])
+    _write(tmp_path / "vdp_nmpc-noise1.csv", 10 * o, controller="nmpc_oracle", noise=0.01)       # one shared draw
+    _write(tmp_path / "vdp_nmpc-mn1.csv", o, controller="nmpc_oracle", noise=0.01, data_noise=0.0, per_x0=True)
+    _write(tmp_path / "vdp_lqr-mn1.csv", 1.5 * o, controller="lqr", noise=0.01, data_noise=0.0, per_x0=True)
+    _write(tmp_path / "vdp_lmpc-reg-dn3-mn1.csv", 100 * o, controller="lmpc", inputs="regression", noise=0.01,
+           data_noise=0.03, per_x0=True, success=[False] * 3)
+    _write(tmp_path / "vdp_lmpc-reg-dn3-mn1-iv.csv", o * [1.0, 1.02, 1.04], controller="lmpc", inputs="regression",
+           noise=0.01, data_noise=0.03, per_x0=True, estimator="iv")
+    lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
+    assert lines[2:] == [
+        "| vdp | regressed, data raw 3 % | 1 % per x0 | nominal | 0/3 | 100.000 / 100 | 3/3 | 1.500 / 1.5 | 3/3 |",
+        "| vdp | regressed, data raw 3 %, IV | 1 % per x0 | nominal | 3/3 | 1.020 / 1.04 | 3/3 | 1.500 / 1.5 | 3/3 |"]
 
 
 def test_refusals(tmp_path):

@@ -102,7 +102,7 @@ def table(paths) -> str:
              "|---|---|---:|---|---:|---:|---:|---:|---:|"]
     conds = sorted({(s, *rest) for (s, c, *rest) in data if c == "lmpc"},
                    key=lambda k: (k[0], k[4] != "", k[1] != "projection", k[7], k[2], k[5], k[3] != "none", k[3],
-                                  k[6], k[4]))
+                                  k[6] != "ls", k[6], k[4]))
 
     def base(system, controller, noise, mism, per_x0):   # the true-model references ignore the data's treatment
         return next((v[1] for k, v in data.items() if k[:2] == (system, controller) and k[3] == noise
