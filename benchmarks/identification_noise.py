@@ -116,7 +116,7 @@ def cell(name, system, dic, sampler, dkw, held, forced, noise, estimator, seeds)
 
 
 def fmt_eig(v: float, note: str) -> str:
-    return note if note and not np.isfinite(v) else f"{100 * v:.2f} %" + (f" ({note})" if note else "")
+    return note if note and not np.isfinite(v) else f"{100 * v:.3g} %" + (f" ({note})" if note else "")
 
 
 def main(argv=None) -> int:

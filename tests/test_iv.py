@@ -308,3 +308,15 @@ def test_iv_on_smoothed_data_needs_a_lag_past_the_window(vdp_data):
     assert not any("smoothed" in w for w in past.report["warnings"])
     pair = lambda m: [complex(*v) for v in m.report["noise"]["linearisation"] if v[1] > 0][0]   # noqa: E731
     assert abs(pair(past) - VDP_LIN) < 0.06 < 0.12 < abs(pair(near) - VDP_LIN)
+
+
+def test_the_report_and_summary_json_name_the_estimator():
+    """The run's summary.json (and the results CSVs from it) read the estimator from the model's report."""
+    from kexp.app.experiment import _model_info
+    s = SlowManifold(mu=-0.7, lam=0.4)
+    ds = collect(s, Box(10, -1.0, 1.0), DataConfig(T=1.0))
+    iv = identify(s, ds, SM_DICT, IdentifyConfig(estimator="iv", iv_lag=2))
+    ls = identify(s, ds, SM_DICT, IdentifyConfig())
+    assert (iv.report["estimator"], iv.report["iv_lag"]) == ("iv", 2)
+    assert (ls.report["estimator"], ls.report["iv_lag"]) == ("ls", None)
+    assert _model_info(iv)["estimator"] == "iv" and _model_info(ls)["estimator"] == "ls"

@@ -249,6 +249,8 @@ def identify(system: ControlAffineSystem | None, dataset: PairSource, dictionary
         "k_fit_residual": fit.relative_residual(0),
         "inputs": config.inputs,
         "fix_equilibrium": bool(fix),
+        "estimator": config.estimator,
+        "iv_lag": config.iv_lag if config.estimator == "iv" else None,
         "input_projection_residual": g_resid.tolist(),
         "dictionary_lie_residual": None if regress else [fit.relative_residual(1 + i) for i in range(system.m)],
         "input_regression_residual": fit.relative_residual(0) if regress else None,
