@@ -129,6 +129,8 @@ def _num(v: Any) -> float | None:
 def _short_verdict(cert: dict | None) -> str | None:
     if not cert:
         return None
+    if cert.get("bounds_state") is False:   # V does not bound the state: whatever the decrease
+        return "not in x"
     if cert.get("global_holds"):
         return "global"
     if cert.get("holds_on_samples"):

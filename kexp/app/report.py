@@ -113,7 +113,8 @@ def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: 
             _fmt(r["max_abs_u"]), _fmt(r["fallbacks"]), _fmt(r["solve_median_ms"], ".3f"),
             _fmt(r["solve_p99_ms"], ".3f"), _fmt(r["certificate"])]) + " |")
     lines += ["", "certificate: `global` = Proposition 1 holds globally, `samples` = h decreases V at every sampled "
-              "state of the region only, `fails` = neither (full verdicts in report.csv).", "", "## Pictures", ""]
+              "state of the region only, `fails` = neither, `not in x` = V does not bound the state (a decrease of V "
+              "does not keep it in the region; full verdicts in report.csv).", "", "## Pictures", ""]
     if pictures:
         titles = {"roa": "Success over the initial conditions (estimate of the region of attraction)",
                   "cost": "Cost of the successful runs", "solve_time": "Solve-time distribution"}

@@ -241,7 +241,8 @@ def table(paths: list[str | Path]) -> str:
         settle = settle[np.isfinite(settle)]
         med = np.array([_f(r["solve_median_ms"]) for r in ok])
         p99 = np.array([_f(r["solve_p99_ms"]) for r in ok])
-        words = {"global": "Prop. 1 holds", "samples": "Prop. 1 fails; V̇(h) < 0 on the grid", "fails": "not a CLF"}
+        words = {"global": "Prop. 1 holds", "samples": "Prop. 1 fails; V̇(h) < 0 on the grid", "fails": "not a CLF",
+                 "not in x": "not a CLF in x (V does not bound the state)"}
         certs = sorted({words.get(r["certificate"], r["certificate"]) for r in ok if r["certificate"]})
         if config in ("lqr", "nmpc"):   # a system without an oracle is a plant: its LQR is on a linearisation
             certs = ["n/a (true model)" if has_oracle else "n/a (linearisation)"]

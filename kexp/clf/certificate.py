@@ -8,6 +8,9 @@
 3. **Level sets** by sampling: r = the largest level such that every sampled x with V < r lies inside the region
    and has V̇(h) < 0; r̂ = the largest level of sampled states in Ω_r where one sample-and-hold step of h fails to
    decrease V (at least ``rhat_floor``·r), so that outside Ω_r̂ the held input decreases V.
+4. **V bounds the state** (:mod:`kexp.clf.bound`): V ≥ c‖x − x_eq‖² over the sampled states, the direction
+   where V is flattest, and the gain γ of the bound in the region's scale; with γ > 20 a decrease of V does not
+   keep the state in the region and the verdict is "not a CLF in x", whatever the decrease.
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from .bound import GAIN_MAX, state_bound
 
 
 @dataclass(frozen=True)
@@ -41,9 +45,19 @@ class CertificateReport:
     r_hat: float
     frac_in_omega_r: float        # sampled x inside Ω_r
     frac_sh_fail: float           # sampled x in Ω_r where one held step of h does not decrease V
+    c_x: float                    # min V(x)/‖x − x_eq‖² over the sampled x
+    flat_direction: tuple[float, ...]         # unit (x − x_eq)/‖x − x_eq‖ at that minimiser
+    c_local: float                # λ_min(JᵀPJ), J = ∂z/∂x(x_eq)
+    flat_direction_local: tuple[float, ...]   # its unit eigenvector
+    bound_gain: float             # γ: a decrease of V keeps x̃ within γ·|x̃0| (region-scaled x − x_eq)
+    bounds_state: bool            # γ ≤ GAIN_MAX
 
     @property
     def verdict(self) -> str:
+        if not self.bounds_state:
+            return (f"not a CLF in x: V is nearly blind to the state along {_vec(self.flat_direction)} "
+                    f"(V ≥ c‖x − x_eq‖² only with c = {self.c_x:.3g}), so a decrease of V does not keep the state "
+                    f"in the region (bound gain {self.bound_gain:.3g} > {GAIN_MAX:g}), whatever the decrease")
         if self.global_holds:
             return "V is a CLF of the homogeneous model (Proposition 1 holds)"
         if self.holds_on_samples:
@@ -58,14 +72,24 @@ class CertificateReport:
                 f"min |L_BV|/V there {self.min_rel_lbv_where_drift_nonneg:.3g}; V̇(h) < 0 at {self.frac_decrease:.1%}; "
                 f"V̇/V median {self.decay_median:.3g}, worst {self.decay_worst:.3g} 1/s",
                 f"  level sets: r = {self.r:.4g} (Ω_r holds {self.frac_in_omega_r:.1%} of the samples), "
-                f"r̂ = {self.r_hat:.4g}; held-input decrease fails at {self.frac_sh_fail:.1%} of Ω_r"]
+                f"r̂ = {self.r_hat:.4g}; held-input decrease fails at {self.frac_sh_fail:.1%} of Ω_r",
+                f"  V bounds x: V ≥ c‖x − x_eq‖², c = {self.c_x:.4g} (flattest along {_vec(self.flat_direction)}); "
+                f"at x_eq λ_min(JᵀPJ) = {self.c_local:.4g} along {_vec(self.flat_direction_local)}; a decrease of V "
+                f"keeps x within {self.bound_gain:.3g}× its start (region-scaled), "
+                + ("≤ {:g}: V bounds the state".format(GAIN_MAX) if self.bounds_state
+                   else "> {:g}: not a CLF in x".format(GAIN_MAX))]
 
     def to_dict(self) -> dict:
         from dataclasses import asdict
         d = asdict(self)
-        d["global_mu"] = list(self.global_mu)
+        for key in ("global_mu", "flat_direction", "flat_direction_local"):
+            d[key] = list(getattr(self, key))
         d["verdict"] = self.verdict
         return d
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{a:.3g}" for a in v) + ")"
 
 
 FINSLER_SDP_MAX_K = 40   # up to this k the margin is the small SDP's; above, the eigenvalue search (_finsler_eig)
@@ -211,6 +235,9 @@ def check_region_config(low, high) -> None:
     if not np.all(lo < hi):
         raise ConfigError(f"clf.region_low={low!r}, clf.region_high={high!r}: need region_low < region_high in "
                           "every coordinate")
+    if not (np.all(lo <= 0) and np.all(hi >= 0)):
+        raise ConfigError(f"clf.region_low={low!r}, clf.region_high={high!r}: the box of x − x_eq must hold the "
+                          "equilibrium: need region_low <= 0 <= region_high in every coordinate")
 
 
 def certificate_bytes(n_samples: int, n: int, k: int, m: int) -> int:
@@ -259,6 +286,15 @@ def region_grid(x_eq: np.ndarray, low, high, grid: int, seed: int = 0) -> tuple[
     return x_eq + pts, boundary
 
 
+def sampled_states(model, config) -> tuple[np.ndarray, np.ndarray]:
+    """The states the certificate samples (:func:`region_grid` of ``config``'s region around x_eq, without those
+    within 1e-3 of the region's size from x_eq): (x (M, n), on_boundary (M,))."""
+    x, boundary = region_grid(model.x_eq, config.region_low, config.region_high, config.grid)
+    radius = np.max(np.abs(np.asarray(config.region_high, dtype=float) - np.asarray(config.region_low, dtype=float)))
+    keep = np.linalg.norm(x - model.x_eq, axis=1) > 1e-3 * radius
+    return x[keep], boundary[keep]
+
+
 def check_certificate(model, lyap, law, config, progress=None) -> CertificateReport:
     """Check V = zᵀPz (``lyap``, a :class:`~kexp.clf.QuadraticLyapunov`) for the identified ``model`` and the
     explicit law ``law`` (z (M, k) -> u (M, m)): Proposition 1 by a small SDP (CLARABEL), then the model's own V̇
@@ -275,10 +311,7 @@ def check_certificate(model, lyap, law, config, progress=None) -> CertificateRep
         progress(f"certificate: Proposition 1 on k = {model.k} coordinates ({how}), then V̇ at {count} sampled "
                  f"states ({sampled})…")
     margin, mu = finsler_margin(lyap)
-    x, boundary = region_grid(model.x_eq, config.region_low, config.region_high, config.grid)
-    radius = np.max(np.abs(np.asarray(config.region_high, dtype=float) - np.asarray(config.region_low, dtype=float)))
-    keep = np.linalg.norm(x - model.x_eq, axis=1) > 1e-3 * radius
-    x, boundary = x[keep], boundary[keep]
+    x, boundary = sampled_states(model, config)
     z = model.lift(x)
     V = lyap.value(z)
     a, beta = lyap.lie(z)
@@ -304,10 +337,12 @@ def check_certificate(model, lyap, law, config, progress=None) -> CertificateRep
         if fail.any():
             r_hat = max(r_hat, float(V[inside][fail].max()))
         r_hat = min(r_hat, r)
+    bound = state_bound(model, lyap, x, V, config.region_low, config.region_high)
     return CertificateReport(
         global_holds=bool(np.isfinite(margin) and margin < 0), global_margin=float(margin), global_mu=mu,
         n_samples=int(x.shape[0]), frac_drift_nonneg=float(drift_nonneg.mean()),
         min_rel_lbv_where_drift_nonneg=float(rel_lbv[drift_nonneg].min()) if drift_nonneg.any() else float("nan"),
         frac_decrease=float((~bad).mean()), decay_median=float(np.median(rate)), decay_worst=float(rate.max()),
         holds_on_samples=bool(not bad.any()), r=r, r_hat=float(r_hat), frac_in_omega_r=float(inside.mean()),
-        frac_sh_fail=frac_fail)
+        frac_sh_fail=frac_fail, c_x=bound.c, flat_direction=bound.direction, c_local=bound.c_local,
+        flat_direction_local=bound.direction_local, bound_gain=bound.gain, bounds_state=bound.holds)

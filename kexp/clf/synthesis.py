@@ -279,7 +279,10 @@ def load_clf(path, model, config: ClfConfig) -> Clf:
             meta = json.loads(str(f["meta"]))
         cert = dict(meta["certificate"])
         cert.pop("verdict", None)
-        cert["global_mu"] = tuple(cert["global_mu"])
+        if "bounds_state" not in cert:   # a file from before the bound was part of the certificate
+            cert.update(_bound_fields(model, P, config))
+        for key in ("global_mu", "flat_direction", "flat_direction_local"):
+            cert[key] = tuple(cert[key])
         report = CertificateReport(**cert)
         facts = {key: meta[key] for key in ("status", "solver", "objective", "sigma")}
     except FileNotFoundError:
@@ -290,3 +293,15 @@ def load_clf(path, model, config: ClfConfig) -> Clf:
                           f"{str(exc).splitlines()[0] if str(exc) else ''}); give the .npz save_clf wrote, or "
                           "synthesise the CLF again") from None
     return Clf(P=P, lyap=QuadraticLyapunov.from_model(model, P), certificate=report, config=config, **facts)
+
+
+def _bound_fields(model, P, config: ClfConfig) -> dict:
+    """The certificate's fields of :func:`~kexp.clf.bound.state_bound` for V = zᵀPz on the region's samples
+    (as check_certificate computes them), for a CLF file written before they existed."""
+    from .bound import state_bound
+    from .certificate import sampled_states
+    lyap = QuadraticLyapunov.from_model(model, P)
+    x = sampled_states(model, config)[0]
+    b = state_bound(model, lyap, x, lyap.value(model.lift(x)), config.region_low, config.region_high)
+    return {"c_x": b.c, "flat_direction": b.direction, "c_local": b.c_local,
+            "flat_direction_local": b.direction_local, "bound_gain": b.gain, "bounds_state": b.holds}
