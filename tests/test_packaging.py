@@ -126,8 +126,9 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp
     (wheel,) = dist.glob("kexp-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     confs = {f"kexp/conf/{p.relative_to(REPO / 'conf').as_posix()}" for p in (REPO / "conf").rglob("*.yaml")}
-    assert len(confs) == 36 and confs <= names and "kexp/conf/config.yaml" in names
-    assert "kexp/app/main.py" in names and "kexp/plants/gymnasium.py" in names
+    assert len(confs) == 37 and confs <= names and "kexp/conf/config.yaml" in names
+    assert "kexp/app/main.py" in names and "kexp/plants/gymnasium.py" in names \
+        and "kexp/conf/system/data.yaml" in names and "kexp/identify/iv.py" in names
     assert not any(n.startswith("conf/") for n in names)
 
     venv = tmp_path / "venv"

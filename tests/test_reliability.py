@@ -78,7 +78,7 @@ def test_bad_input_is_refused_early_with_one_line(override, fragment, tmp_path):
 
 
 @pytest.mark.parametrize("argv,fragment", [
-    (["system=nope"], "Could not find 'system/nope' Available options in 'system': cart_pendulum duffing linear"),
+    (["system=nope"], "Could not find 'system/nope' Available options in 'system': cart_pendulum data duffing linear"),
     (["+experiment=nope"], "Could not find 'experiment/nope'"),
     (["data.dtt=1"], "data.dtt: Key 'dtt' not in 'DataConfigSchema'; valid keys: ['T', 'dt', "),
     # wrong types fail at composition against the schema (kexp/app/schema.py), with the full key
@@ -92,7 +92,7 @@ def test_bad_input_is_refused_early_with_one_line(override, fragment, tmp_path):
     (["-m", "sim.T=1,2", "data.dtt=1,2"], "data.dtt: Key 'dtt' not in 'DataConfigSchema'"),
     (["sim.x0=[1,"], "no viable alternative"),
     # a sweep's master config (its overrides that are not swept) composed as Hydra composes it, before any job
-    (["-m", "system=nope"], "Could not find 'system/nope' Available options in 'system': cart_pendulum duffing linear"),
+    (["-m", "system=nope"], "Could not find 'system/nope' Available options in 'system': cart_pendulum data duffing linear"),
     (["-m", "+experiment=nope", "sim.T=1,2"], "Could not find 'experiment/nope'"),
     # a key below a node that this choice leaves null (OmegaConf raised a bare AssertionError: a traceback)
     (["controller=lqr", "controller.lmpc.horizon=20"],

@@ -83,7 +83,7 @@ def test_empty_header_only_and_non_csv_text_are_refused(tmp_path, capsys, cmd):
     short = _write(tmp_path / "vdp_mpc.csv", [_row(0)])
     with open(short, "a") as f:
         f.write("0.1,0.2,completed\n")
-    _refused(capsys, "line 3: fewer fields than the header's 17", cmd, short)
+    _refused(capsys, "line 3: fewer fields than the header's 19", cmd, short)
 
 
 @pytest.mark.parametrize("cmd", ["table", "robustness"])
