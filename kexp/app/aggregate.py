@@ -162,7 +162,9 @@ def _row(job: Path, root: Path, overrides: list[str] | None, summary: dict | Non
     clf = summary.get("clf") or {}
     cert = clf.get("certificate") or {}
     status = summary.get("status")
-    completed = bool(summary.get("completed")) and status == "completed"
+    # a system=data run without a plant stops after identification and its certificate ("identified", data_only.py):
+    # it completed what it set out to do, with no closed loop and so no success
+    completed = bool(summary.get("completed")) and status in ("completed", "identified")
     settle = _num(m.get("settling_time"))
     if settle is None and "settling_time" in m and summary.get("completed"):
         settle = math.inf  # summary.json writes inf (never settled within tol) as null
