@@ -169,3 +169,13 @@ def test_closed_loop_with_daqp_stabilises_and_applies_the_ipms_inputs(vdp):
     assert np.max(np.abs(runs["daqp"].x[-1])) <= 0.1
     du = np.max(np.abs(runs["daqp"].u - runs["ipm"].u))
     assert du <= 1e-4, du
+
+
+def test_changed_bounds_reach_the_warm_started_solver():
+    """The same DenseQp with the bounds narrowed, then widened again: each answer is the clipped unconstrained
+    minimiser of its own bounds (H = I: the projection is exact), not the previous bounds'."""
+    qp = DenseQp(3, 1, solver="daqp")
+    H, g, G, h = np.eye(3), np.array([-2.0, 0.3, 2.0]), np.zeros((1, 3)), np.ones(1)
+    for b in (1.0, 0.5, 1.0, 0.25):
+        r = qp.solve(H, g, G, h, -b * np.ones(3), b * np.ones(3))
+        assert r.success and np.array_equal(r.x, np.clip(-g, -b, b)), (b, r.x)
