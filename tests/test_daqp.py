@@ -179,3 +179,20 @@ def test_changed_bounds_reach_the_warm_started_solver():
     for b in (1.0, 0.5, 1.0, 0.25):
         r = qp.solve(H, g, G, h, -b * np.ones(3), b * np.ones(3))
         assert r.success and np.array_equal(r.x, np.clip(-g, -b, b)), (b, r.x)
+
+
+def test_binding_needs_no_interior_point_margin_on_the_daqp_path(vdp):
+    """iterate_when='binding': an input 1e-5 of its range inside a bound counts as binding for the interior point
+    (its margin 1e-3: it stops short of active bounds) but not for DAQP, whose active bounds are met exactly; an
+    input on the bound binds for both, and an interior plan binds for neither."""
+    _, model, clf, h = vdp
+    ctrls = {s: Lmpc(model, clf, h, LmpcConfig(qp_solver=s, iterate_when="binding", max_iter=3), -5.0, 5.0)
+             for s in ("ipm", "daqp")}
+    nb, m = ctrls["ipm"].nb, ctrls["ipm"].m
+    x = np.zeros(nb * m + 1)
+    for u0, want in ((-5.0 + 1e-4, {"ipm": True, "daqp": False}), (-5.0, {"ipm": True, "daqp": True}),
+                     (0.3, {"ipm": False, "daqp": False})):
+        U = np.full((nb, m), 0.1)
+        U[2, 0] = u0
+        for s, c in ctrls.items():
+            assert c._qp_binds(x, U, "none", np.zeros(m), 0.0) == want[s], (s, u0)
