@@ -122,8 +122,8 @@ def main() -> int:
         rows.append(row)
         for solver in args.solvers:
             o = np.array(times[solver]) * 1e3
-            side.append([preset, f"{ctrl.cfg.qp_solver} (today's)", f"{np.median(t):.3f}", f"{np.percentile(t, 99):.3f}",
-                         "1.00×", "0"] if solver == args.solvers[0] else [])
+            side.append([preset, f"{ctrl.cfg.qp_solver} (today's)", f"{np.median(t):.3f}",
+                         f"{np.percentile(t, 99):.3f}", "1.00×", "0"] if solver == args.solvers[0] else [])
             side.append([preset, solver, f"{np.median(o):.3f}", f"{np.percentile(o, 99):.3f}",
                          f"{np.median(o) / np.median(t):.2f}×", f"{dus[solver]:.1e}"])
     print("| " + " | ".join(head) + " |")

@@ -2,10 +2,10 @@
 """Benchmark: the LMPC's QP on kexp's interior point (kexp.control.ipm), DAQP and PIQP, on the same real QPs.
 
 Captures every one-row QP (``Lmpc.qp_f``) the LMPC solves in closed loop on two problems: the Van der Pol preset
-(``kexp +experiment=vanderpol``, built as benchmarks/presets.py builds it; 3 x0 × 5 s) and the benchmark problem of
-``benchmarks/lmpc.py`` (k = 20, horizon 100, 20 blocks, x0 (0.548, 0.817), 2 s).  Each solver
-(``DenseQp(solver=…)``) then solves each problem's QPs in their closed-loop order, so DAQP's warm start is the previous
-QP's active set as in a run:
+(``kexp +experiment=vanderpol``, built as benchmarks/presets.py builds it; 3 x0 × 5 s) and the benchmark problem
+of ``benchmarks/lmpc.py`` (k = 20, horizon 100, 20 blocks, x0 (0.548, 0.817), 2 s).  Each solver
+(``DenseQp(solver=…)``) then solves each problem's QPs in their closed-loop order, so DAQP's warm start is the
+previous QP's active set as in a run:
 
 - tight loop: one solver runs the whole sequence, ``--reps`` times; per QP the median over the repetitions;
 - interleaved: the solvers alternate per QP (ipm, daqp, piqp, ipm, …), ``--reps`` passes.
@@ -156,7 +156,8 @@ def measure(qps, reps):
             stat, viol = max(stat, st), max(viol, vi)
             gap = max(gap, daqp_gap(qp, sols[s][i], sols["daqp"][i]))
         tm, im = np.median(tight[s], axis=0) * 1e6, np.median(inter[s], axis=0) * 1e6
-        rows[s] = (np.median(tm), np.percentile(tm, 99), np.median(im), np.percentile(im, 99), excess, stat, viol, gap)
+        rows[s] = (np.median(tm), np.percentile(tm, 99), np.median(im), np.percentile(im, 99),
+                   excess, stat, viol, gap)
     return rows, {s: np.max(np.abs(np.array(sols[s]) - np.array(sols["daqp"]))) for s in SOLVERS}
 
 

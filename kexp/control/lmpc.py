@@ -11,8 +11,8 @@ with ℓ(z) = w‖z‖² (state_cost 'z', W = wI) or w‖Cz‖² (state_cost 'x'
 Outside Ω_r the paper gives no constraint; kexp keeps (21f) there too.
 
 Each SQP iteration linearises the exact rollout around the current guess (warm start: the previous solution
-shifted by one step), condenses it into a dense QP in (U, s) and solves it (kexp.control.ipm, DAQP or PIQP).  ``max_iter = 1`` is the
-real-time iteration (one QP per step).  A failed QP falls back to h(z_0) and says why.
+shifted by one step), condenses it into a dense QP in (U, s) and solves it (kexp.control.ipm, DAQP or PIQP).
+``max_iter = 1`` is the real-time iteration (one QP per step).  A failed QP falls back to h(z_0) and says why.
 """
 from __future__ import annotations
 
@@ -44,8 +44,8 @@ class LmpcConfig:
     (up to ``max_iter`` in every step) or 'binding' (past the first QP only when its solution has an input bound or
     a Lyapunov constraint active: the real-time iteration elsewhere); ``slack_weight`` ρ of the
     softened (21e); ``use_21e`` / ``use_21f`` switch those constraints; ``qp_solver`` 'ipm' (kexp's compiled
-    interior point, :mod:`kexp.control.ipm`), 'daqp' (dual active set, warm-started) or 'piqp', with its tolerance ``qp_eps`` and iteration limit
-    ``qp_max_iter``."""
+    interior point, :mod:`kexp.control.ipm`), 'daqp' (dual active set, warm-started) or 'piqp', with its
+    tolerance ``qp_eps`` and iteration limit ``qp_max_iter``."""
 
     horizon: int = 100
     w: float = 1.0
