@@ -43,8 +43,8 @@ class LmpcConfig:
     SQP iterations per step (1: real-time iteration) stopping at step size ``tol``; ``iterate_when`` 'always'
     (up to ``max_iter`` in every step) or 'binding' (past the first QP only when its solution has an input bound or
     a Lyapunov constraint active: the real-time iteration elsewhere); ``slack_weight`` ρ of the
-    softened (21e); ``use_21e`` / ``use_21f`` switch those constraints; ``qp_solver`` 'ipm' (kexp's compiled
-    interior point, :mod:`kexp.control.ipm`), 'daqp' (dual active set, warm-started) or 'piqp', with its
+    softened (21e); ``use_21e`` / ``use_21f`` switch those constraints; ``qp_solver`` 'daqp' (default: dual active
+    set, warm-started, exact at the bounds), 'ipm' (kexp's compiled interior point, :mod:`kexp.control.ipm`) or 'piqp', with its
     tolerance ``qp_eps`` and iteration limit ``qp_max_iter``."""
 
     horizon: int = 100
@@ -60,7 +60,7 @@ class LmpcConfig:
     slack_weight: float = 1e4
     use_21e: bool = True
     use_21f: bool = True
-    qp_solver: str = "ipm"
+    qp_solver: str = "daqp"
     qp_eps: float = 1e-8
     qp_max_iter: int = 100
 
