@@ -147,11 +147,11 @@ class Lmpc:
         qp = dict(eps=config.qp_eps, max_iter=config.qp_max_iter, solver=config.qp_solver)
         self.qp_e = DenseQp(self.nu + 1, config.horizon, **qp)
         self.qp_f = DenseQp(self.nu + 1, 1, **qp)
-        self.lam = np.ascontiguousarray(model.Lambda)
-        self.B = np.ascontiguousarray(model.B)
-        self.b = np.ascontiguousarray(model.b)
-        self.P = np.ascontiguousarray(clf.P)
-        self.out = np.ascontiguousarray(model.C) if config.state_cost == "x" else None
+        # owned, writable, C-ordered copies: a read-only array (a model or P from kexp's cache, a user's
+        # frozen array) is another type to numba, whose kernels would compile again for it (kexp.control.jit_cache)
+        self.lam, self.B, self.b, self.P = (np.array(a, order="C")
+                                            for a in (model.Lambda, model.B, model.b, clf.P))
+        self.out = np.array(model.C, order="C") if config.state_cost == "x" else None
         self.r_diag = np.repeat(self.sizes.astype(float), self.m) * config.r
         self.x_l = np.concatenate([np.tile(self.u_min, self.nb), [0.0]])
         self.x_u = np.concatenate([np.tile(self.u_max, self.nb), [np.inf]])
