@@ -7,15 +7,12 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls
 
-from kexp.clf import ClfConfig, synthesize_clf
-from kexp.control import Lmpc, LmpcConfig, make_law
+from kexp.control import Lmpc, LmpcConfig
 from kexp.control.qp import DenseQp
-from kexp.data import Circle, DataConfig, collect
-from kexp.dictionary import Monomials
 from kexp.errors import ConfigError
-from kexp.identify import identify
 from kexp.simulate import SimConfig, closed_loop
-from kexp.systems import VanDerPol
+
+from test_lmpc import vdp  # noqa: F401   the benchmark problem's model, CLF and h (a module fixture)
 
 
 def _committed_qps():
@@ -142,14 +139,6 @@ def test_the_solver_setting_is_validated():
     with pytest.raises(ConfigError, match="valid"):
         DenseQp(3, 1, solver="DAQP")
     assert LmpcConfig(qp_solver="daqp").qp_solver == "daqp"
-
-
-@pytest.fixture(scope="module")
-def vdp():
-    s = VanDerPol()
-    model = identify(s, collect(s, Circle(100, 2.5), DataConfig(T=10.0)), Monomials(2, 5))
-    clf = synthesize_clf(model, ClfConfig())
-    return s, model, clf, make_law("sontag", clf.lyap, -5.0, 5.0)
 
 
 def test_closed_loop_with_daqp_stabilises_and_applies_the_ipms_inputs(vdp):
