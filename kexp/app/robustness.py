@@ -35,7 +35,7 @@ def _conditions(name: str, row: dict) -> tuple:
     controller its runs used (a paper-lmpc CSV in today's columns says controller lmpc, as the working preset's)."""
     configured = split_stem(name)[1].split("-")[0]
     controller = configured if configured not in KINDS else (row.get("controller") or configured)
-    controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
+    controller = {"nmpc_oracle": "nmpc", "nmpc_sqp": "nmpc"}.get(controller, controller)
     sim_noise = round(_f(row.get("sim_noise") or 0.0), 6)
     data_noise = row.get("data_noise")
     return (controller, row.get("inputs") or "projection", sim_noise, row.get("smoothing") or "none",

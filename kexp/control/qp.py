@@ -112,7 +112,9 @@ class DenseQp:
         code = _scan(H, g, G, h_u, x_l, x_u, old_l, old_u)
         return _SCAN_PROBLEM.get(code, ""), code == 0
 
-    def solve(self, H, g, G, h_u, x_l, x_u) -> QpResult:
+    def solve(self, H, g, G, h_u, x_l, x_u, *, same_h: bool = False) -> QpResult:
+        """``same_h``: H is the previous solve's, unchanged (DAQP then keeps its factorisation: an update of g and
+        the bounds only; the other solvers ignore it)."""
         H = np.asfortranarray(H, dtype=float)
         g = np.ascontiguousarray(g, dtype=float)
         G = np.asfortranarray(G, dtype=float)
@@ -126,7 +128,7 @@ class DenseQp:
         if self.solver == "ipm":
             return self._solve_ipm(H, g, G, h_u, x_l, x_u)
         if self.solver == "daqp":
-            return self._solve_daqp(H, g, G, h_u, x_l, x_u, same_bounds)
+            return self._solve_daqp(H, g, G, h_u, x_l, x_u, same_bounds, same_h)
         t0 = time.perf_counter()
         if self._solver is None:
             s = piqp.DenseSolver()
@@ -165,17 +167,18 @@ class DenseQp:
         name = STATUS_NAMES[code]
         return QpResult(x, name, ok, int(iters), dt, "" if ok else f"interior point: {name}")
 
-    def _solve_daqp(self, H, g, G, h_u, x_l, x_u, same_bounds) -> QpResult:
+    def _solve_daqp(self, H, g, G, h_u, x_l, x_u, same_bounds, same_h=False) -> QpResult:
         # DAQP reads rows (C order): H is symmetric, so the transpose of its Fortran-ordered array is H itself, and
         # a one-row G is both orders; the model keeps pointers to these arrays (no copy) until the next update
-        H = H.T
+        H = None if same_h and self._solver is not None else H.T
         n = self.n
+        A = G if self.n_ineq else None     # DAQP's update indexes a 0-row A out of bounds: give it none
         bu, bl = self._bu, self._bl
         bu[n:] = h_u
         t0 = time.perf_counter()
         model = self._solver
         if same_bounds:    # the simple bounds in bu and bl are those DAQP holds: only the rows' bounds change
-            flag = model.update(H=H, f=g, A=G, bupper=bu)
+            flag = model.update(H=H, f=g, A=A, bupper=bu)
         elif model is None:
             bu[:n] = x_u
             bl[:n] = x_l
@@ -188,7 +191,7 @@ class DenseQp:
         else:     # the working set of the last solve is kept: the warm start
             bu[:n] = x_u
             bl[:n] = x_l
-            flag = model.update(H=H, f=g, A=G, bupper=bu, blower=bl)
+            flag = model.update(H=H, f=g, A=A, bupper=bu, blower=bl)
             self._bounds = (x_l.copy(), x_u.copy())
         if flag < 0:       # H not positive definite (its factorisation failed) or the data refused
             self._solver = None
