@@ -187,3 +187,18 @@ def test_controller_solver_key_chooses_the_oracle(vdp):
         build_controller_spec({**base, "solver": "fast"})
     with pytest.raises(ConfigError, match="controller.solver: unknown key for kind 'lqr'"):
         build_controller_spec({"kind": "lqr", "solver": "sqp"})
+
+
+def test_hessian_policies_reach_the_same_optimum_along_a_closed_loop():
+    """H is only the QP's metric: keeping it across iterations and steps changes the path, not the solution."""
+    ctl = {h: SqpOracle(VanDerPol(), None, -2, 2, horizon_steps=80, dt=0.01, hessian=h)
+           for h in ("every", "step", "kept")}
+    x = np.array([2.0, 1.0])
+    for _ in range(25):
+        steps = {h: c.step(x) for h, c in ctl.items()}
+        assert all(st.qp_status == "solved" for st in steps.values())
+        ref = ctl["every"].last_objective
+        for h in ("step", "kept"):
+            assert abs(ctl[h].last_objective - ref) <= 1e-9 * max(1.0, ref)
+            assert np.max(np.abs(steps[h].u - steps["every"].u)) < 1e-5
+        x = ctl["every"].simulate(x, np.repeat(steps["every"].u[None], 80, 0))[1]

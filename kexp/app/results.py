@@ -216,6 +216,26 @@ def _f(v: str) -> float:
 
 
 NO_ORACLE = "n/a (no oracle)"     # a system without <system>_nmpc.csv: a plant with no formula, no NMPC oracle
+# the oracle's solver by its controller name (runs from before the column had only IPOPT's oracle)
+ORACLE_SOLVERS = {"nmpc_oracle": "CasADi + IPOPT", "nmpc_sqp": "kexp's compiled SQP"}
+
+
+def oracle_line(paths: list[str | Path]) -> str:
+    """The line under a table that says which solver made its J_oracle: from the ``controller`` column of the
+    ``<system>_nmpc*.csv`` among ``paths`` ('' when there is none)."""
+    solvers: dict[str, set] = {}
+    for p in sorted({Path(q) for q in paths}):
+        if is_ocp(p) or split_name(p)[1].split("-")[0] != "nmpc":
+            continue
+        for r in read_csv(p):
+            name = r.get("controller") or "nmpc_oracle"
+            solvers.setdefault(ORACLE_SOLVERS.get(name, name), set()).add(split_name(p)[0])
+    if not solvers:
+        return ""
+    if len(solvers) == 1:
+        return f"J_oracle (J*): the true-model NMPC solved by {next(iter(solvers))} for every system."
+    return "J_oracle (J*): the true-model NMPC solved by " + "; ".join(
+        f"{s} ({', '.join(sorted(v))})" for s, v in sorted(solvers.items())) + "."
 
 
 def table(paths: list[str | Path]) -> str:
@@ -252,7 +272,8 @@ def table(paths: list[str | Path]) -> str:
             f"| {system} | {config} | {succ}/{len(rows)} | {fmt(cost)} | {fmt(cost, agg=np.max)} | "
             f"{r_med} | {r_max} | {fmt(settle, '.2f')} | "
             f"{fmt(med, '.2f')} / {fmt(p99, '.2f', np.max)} | {'; '.join(certs) or '–'} |")
-    return "\n".join(lines)
+    note = oracle_line(paths)
+    return "\n".join(lines + (["", note] if note else []))
 
 
 def main(argv=None) -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .aggregate import ReportError
-from .results import NO_ORACLE, is_ocp, read_csv, split_name, split_stem, x0_columns, x0_key
+from .results import NO_ORACLE, is_ocp, oracle_line, read_csv, split_name, split_stem, x0_columns, x0_key
 
 KINDS = ("lmpc", "lqr", "nmpc")
 
@@ -130,4 +130,5 @@ def table(paths) -> str:
             g += f", {estimator.upper()}"
         sigma = _noise(noise) + (" per x0" if per_x0 and noise != 0 else "")
         lines.append(f"| {system} | {g} | {sigma} | {_plant(mism)} | {ls} | {lr} | {qs} | {qr} | {os_} |")
-    return "\n".join(lines)
+    note = oracle_line(paths)
+    return "\n".join(lines + (["", note] if note else []))

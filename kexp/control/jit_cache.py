@@ -96,6 +96,7 @@ class _Announce(ev.Listener):
 
 
 def _is_kexps(dispatcher) -> bool:
-    """Whether the function being compiled is one of kexp's (a user's own njit code is not announced)."""
+    """Whether the function being compiled is one of kexp's (a user's own njit code is not announced), the
+    oracle's generated dynamics (kexp.control.codegen) included."""
     module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
-    return module == "kexp" or module.startswith("kexp.")
+    return module == "kexp" or module.startswith(("kexp.", "kexp_dynamics_"))

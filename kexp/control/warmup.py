@@ -4,7 +4,8 @@ container build.  With the cache already filled it only loads the kernels (about
 
 It builds two small LMPCs and runs them a few steps: Van der Pol (one input: the polynomial zero-order-hold path)
 and the slow-manifold system with two inputs (the exponential path), which between them call every kernel a run
-calls, with the argument types a run passes."""
+calls, with the argument types a run passes; and, where casadi is installed, the SQP oracle on Van der Pol (its
+kernels and that system's generated dynamics; another system's dynamics compile on its first use, in seconds).
 from __future__ import annotations
 
 import sys
@@ -30,6 +31,12 @@ def warm_up() -> None:
         for cost in ("x", "z"):
             ctrl = Lmpc(model, clf, law, LmpcConfig(state_cost=cost), -5.0, 5.0)
             closed_loop(system, ctrl, np.array([0.3, -0.2]), SimConfig(T=0.05), model=model, lyap=clf.lyap)
+    try:
+        import casadi  # noqa: F401
+    except ImportError:
+        return
+    from .sqp_oracle import SqpOracle
+    SqpOracle(VanDerPol(), None, horizon_steps=10).step(np.array([0.3, -0.2]))
 
 
 def main() -> None:
