@@ -110,6 +110,11 @@ def test_generated_module_is_written_once_and_an_unwritable_cache_falls_back(tmp
     assert codegen.compiled_dynamics(x, u, -x * 1.2345678 + u) is mod
 
 
+def _same_optimum(j_sqp: float, j_ipopt: float) -> None:
+    scale = max(1.0, j_ipopt)
+    assert j_sqp - j_ipopt <= 1e-9 * scale and j_ipopt - j_sqp <= 1e-6 * scale
+
+
 def _both(system, horizon=100, **kw):
     return (SqpOracle(system, None, -5, 5, horizon_steps=horizon, dt=0.01, **kw),
             NmpcOracle(system, None, -5, 5, horizon_steps=horizon, dt=0.01, **kw))
@@ -124,8 +129,9 @@ def test_sqp_reaches_ipopts_objective(system):
         ipopt.reset()
         a, b = sqp.step(x0), ipopt.step(x0)
         assert a.status == "solved" and a.qp_status == "solved" and b.status == "solved"
-        # both solve to convergence: the objectives agree far inside the 1e-6 (measured ≤ 3e-11)
-        assert abs(sqp.last_objective - ipopt.last_objective) <= 1e-8 * max(1.0, ipopt.last_objective)
+        # both solve to convergence: the objectives agree within the 1e-6 (measured ≤ 3e-11 here; where
+        # IPOPT stops early at active bounds the SQP is the lower one, by up to 2e-7), and the SQP is never worse
+        _same_optimum(sqp.last_objective, ipopt.last_objective)
         assert np.all(sqp.last_plan >= -5) and np.all(sqp.last_plan <= 5)
         assert np.max(np.abs(sqp.last_plan - ipopt.last_plan)) < 1e-4
         # the SQP's own prediction is the true rollout of its plan: its objective is that plan's cost
@@ -158,7 +164,15 @@ def test_blocking_terminal_and_long_horizon_options():
     x0 = np.array([1.5, -1.0])
     a, b = sqp.step(x0), ipopt.step(x0)
     assert sqp.nb == 40 and a.qp_status == "solved"
-    assert abs(sqp.last_objective - ipopt.last_objective) <= 1e-8 * max(1.0, ipopt.last_objective)
+    _same_optimum(sqp.last_objective, ipopt.last_objective)
+    # two inputs, blocked, tight bounds (the generated code and the condensing for m = 2)
+    cfg2 = LmpcConfig(horizon=50, free_moves=3, blocks=8)
+    two = SlowManifold(inputs="both")
+    sqp2, ipopt2 = SqpOracle(two, cfg2, -1, 1, 50, 0.01), NmpcOracle(two, cfg2, -1, 1, 50, 0.01)
+    for x0 in np.random.default_rng(1).uniform(-2, 2, (3, 2)):
+        assert sqp2.step(x0).qp_status == "solved" and ipopt2.step(x0).status == "solved"
+        assert sqp2.last_plan.shape == (8, 2)
+        _same_optimum(sqp2.last_objective, ipopt2.last_objective)
 
 
 def test_closed_loop_steps_warm_start_and_fallback():
