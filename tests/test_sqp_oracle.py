@@ -216,3 +216,19 @@ def test_hessian_policies_reach_the_same_optimum_along_a_closed_loop():
             assert abs(ctl[h].last_objective - ref) <= 1e-9 * max(1.0, ref)
             assert np.max(np.abs(steps[h].u - steps["every"].u)) < 1e-5
         x = ctl["every"].simulate(x, np.repeat(steps["every"].u[None], 80, 0))[1]
+
+
+def test_a_users_own_system_gets_the_fast_oracle_by_config_alone(tmp_path):
+    """The README's own-system folder (a class in my_systems.py, no symbolic model written): `controller=nmpc` traces
+    its numpy code, compiles it and runs the SQP oracle in the app; the summary names the oracle."""
+    import json
+
+    from test_own_system import SMALL, _kexp, _user_folder
+    _user_folder(tmp_path)
+    proc = _kexp(["-cd", "myconf", "+experiment=mine", "controller=nmpc", "controller.horizon=30",
+                  *[a for a in SMALL if not a.startswith("controller.lmpc")],
+                  f"hydra.run.dir={tmp_path / 'run'}"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["controller"] == "nmpc_sqp" and summary["status"] == "completed"
+    assert summary["metrics"]["fallbacks"] == 0 and summary["metrics"]["cost"] > 0
