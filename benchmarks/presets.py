@@ -64,6 +64,15 @@ def build(preset: str, cache: str):
     return got["system"], got["model"], got["clf"], got["ctrl"]
 
 
+def old_config(old_mod, cfg):
+    """Today's LmpcConfig as the baseline's own class: the fields it has, a QP solver it knows (else its default)."""
+    fields = {f.name for f in dataclasses.fields(old_mod.LmpcConfig)}
+    kw = {k: v for k, v in dataclasses.asdict(cfg).items() if k in fields}
+    if "qp_solver" in kw and kw["qp_solver"] not in getattr(old_mod, "SOLVERS", ()):
+        kw.pop("qp_solver")
+    return old_mod.LmpcConfig(**kw)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", nargs="+", default=["vanderpol", "pendulum"])
@@ -95,7 +104,7 @@ def main() -> int:
         system, model, clf, ctrl = build(preset, args.cache)
         ctrls = {"today": ctrl}
         if old_mod is not None:
-            ctrls["old"] = old_mod.Lmpc(model, clf, ctrl.law, ctrl.cfg, ctrl.u_min, ctrl.u_max)
+            ctrls["old"] = old_mod.Lmpc(model, clf, ctrl.law, old_config(old_mod, ctrl.cfg), ctrl.u_min, ctrl.u_max)
         for solver in args.solvers:
             cfg = dataclasses.replace(ctrl.cfg, qp_solver=solver)
             ctrls[solver] = type(ctrl)(model, clf, ctrl.law, cfg, ctrl.u_min, ctrl.u_max)
