@@ -67,6 +67,13 @@ def test_the_table_says_which_solver_made_each_systems_oracle(tmp_path):
     assert lines[-1] == ("J_oracle (J*): the true-model NMPC solved by CasADi + IPOPT (vdp); kexp's compiled SQP "
                          "(pend).")
     assert results_table(sorted(tmp_path.glob("*.csv"))).splitlines()[-1] == lines[-1]
+    # a long-horizon oracle row (results/horizon/) is a row of the results table against J_oracle, not J_oracle
+    h300 = _write(tmp_path / "vdp_nmpc-h300.csv", 0.9 * o, controller="nmpc_sqp")
+    got = results_table(sorted(tmp_path.glob("*.csv"))).splitlines()
+    assert got[-1] == lines[-1]
+    assert any(r.startswith("| vdp | nmpc-h300 | 2/2 | 1.350 | 1.800 | 0.900 | 0.900 |") for r in got)
+    assert results_table([tmp_path / "vdp_nmpc.csv", h300]).splitlines()[-1] == \
+        "J_oracle (J*): the true-model NMPC solved by CasADi + IPOPT for every system."
 
 
 def test_an_oracle_run_without_a_cost_leaves_its_x0_out_of_the_ratios(tmp_path):

@@ -232,3 +232,22 @@ def test_a_users_own_system_gets_the_fast_oracle_by_config_alone(tmp_path):
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["controller"] == "nmpc_sqp" and summary["status"] == "completed"
     assert summary["metrics"]["fallbacks"] == 0 and summary["metrics"]["cost"] > 0
+
+
+def test_the_lqr_first_guess_keeps_a_long_horizon_in_the_stabilising_family():
+    """From zero inputs a 3-s horizon lets the cart pendulum fall first, and a local solver stays with plans that
+    swing it through (J ≈ 38); from the LQR feedback rolled out both solvers find the plan that catches it (1.41)."""
+    x0 = np.array([-0.1265652215, 0.9057987901])      # a results x0 where the zero guess failed (results/horizon)
+    zero = SqpOracle(CartPendulum(), None, -5, 5, horizon_steps=300, dt=0.01, init="zero")
+    lqr = SqpOracle(CartPendulum(), None, -5, 5, horizon_steps=300, dt=0.01)
+    ipopt = NmpcOracle(CartPendulum(), None, -5, 5, horizon_steps=300, dt=0.01)
+    assert lqr.init == ipopt.init == "lqr"
+    zero.step(x0)
+    assert lqr.step(x0).qp_status == "solved" and ipopt.step(x0).status == "solved"
+    assert zero.last_objective > 20 and lqr.last_objective < 2
+    _same_optimum(lqr.last_objective, ipopt.last_objective)
+    with pytest.raises(ConfigError, match=r"init='warm'; valid: \('zero', 'lqr'\)"):
+        SqpOracle(CartPendulum(), None, init="warm")
+    with pytest.raises(ConfigError, match=r"controller.init='warm'; valid: \('lqr', 'zero'\)"):
+        build_controller_spec({"kind": "nmpc", "init": "warm"})
+    assert build_controller_spec({"kind": "nmpc"}).init == "lqr"

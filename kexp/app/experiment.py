@@ -109,7 +109,7 @@ _DEFAULT_PLANT = _default_plant()
 # integrator), unpaced runs, the automatic linearisation, issue 34's identification and noise keys (the model
 # cache keys on the identification code's digest as well, so a changed default still re-identifies)
 _LATER_KEYS = {("plant",): _DEFAULT_PLANT, ("sim", "realtime"): False, ("controller", "linearisation"): None,
-               ("controller", "solver"): None,
+               ("controller", "solver"): None, ("controller", "init"): None,
                ("identification", "fix_equilibrium"): None, ("identification", "estimator"): "ls",
                ("identification", "iv_lag"): 1, ("sim", "noise", "per_x0"): False, ("data", "noise", "per_x0"): False}
 

@@ -127,6 +127,9 @@ def symbolic_dynamics(system, *, check: bool = True, with_source: bool = False):
 
 
 # ---- NMPC on the true system -------------------------------------------------------------------------------------
+INITS = ("zero", "lqr")      # the oracles' first guess after a reset
+
+
 class TrueModelOracle:
     """What the true-model oracles share: the validated horizon, weights and bounds, the move blocking from
     ``config``, the LQR gain and terminal matrix of the true linearisation, ``reset`` and the fallback step.
@@ -136,7 +139,11 @@ class TrueModelOracle:
     solver_label = "the solver"
 
     def _setup(self, system, config, u_min, u_max, horizon_steps, dt, q, r, terminal, substeps, clf, law,
-               record_prediction):
+               record_prediction, init="lqr"):
+        if init not in INITS:
+            raise ConfigError(f"nmpc init={init!r}; valid: {INITS} (the first guess after a reset: zero inputs, or "
+                              "the saturated LQR feedback rolled out on the true system)")
+        self.init = init
         if not (isinstance(horizon_steps, (int, np.integer)) and horizon_steps >= 1):
             raise ConfigError(f"nmpc horizon_steps={horizon_steps}: use an int >= 1")
         if not (dt > 0 and q > 0 and r > 0 and isinstance(substeps, (int, np.integer)) and substeps >= 1):
@@ -170,8 +177,34 @@ class TrueModelOracle:
 
     def reset(self) -> None:
         self._useq = np.zeros((self.N, self.m))
+        self._cold = True
         self.last_plan = None
         self.last_objective = float("nan")
+
+    def _one_step(self, x, u) -> np.ndarray:
+        """x after one Δ with u held, by the oracle's own RK4 map."""
+        raise NotImplementedError
+
+    def _lqr_guess(self, x0) -> np.ndarray:
+        """Per-step inputs (N, m) of the saturated LQR feedback rolled out from x0 on the true RK4 map (a first guess
+        in the stabilising family of plans: from zero inputs a long horizon lets an unstable system fall first, and
+        a local solver may stay with plans that swing through)."""
+        useq = np.zeros((self.N, self.m))
+        x = np.asarray(x0, float)
+        for j in range(self.N):
+            u = np.clip(-self.K @ (x - self.x_eq), self.u_min, self.u_max)
+            useq[j] = u
+            x = self._one_step(x, u)
+            if not np.all(np.isfinite(x)):
+                break
+        return useq
+
+    def _first_guess(self, x0) -> np.ndarray:
+        """The block inputs to start from: the previous plan shifted by one step, or after a reset ``init``'s."""
+        if self._cold and self.init == "lqr":
+            self._useq = self._lqr_guess(x0)
+        self._cold = False
+        return self._warm_blocks()
 
     def _region(self, z0) -> str:
         if self.clf is not None and z0 is not None and np.size(z0) > 0:
@@ -213,6 +246,9 @@ class NmpcOracle(TrueModelOracle):
     anything with ``free_moves``/``blocks``) only the move blocking is used; the horizon is ``horizon_steps``.
     z0 is unused; ``region`` is 'n/a' unless a ``clf`` is given (then it is computed from z0, with no constraint).
     On an IPOPT failure the step falls back to ``law(z0)`` if a law is given, else to the saturated LQR feedback.
+    The first guess after a reset is ``init``'s: 'lqr' (the default), the saturated LQR feedback rolled out on the
+    true system, or 'zero' inputs (kexp before issue 35: from zero inputs a 3-s horizon lets the cart pendulum fall
+    first, and both solvers then stay with plans that swing it through — J 38–46 where the LQR guess gives 1.41).
     :class:`~kexp.control.sqp_oracle.SqpOracle` solves the same problem with kexp's compiled SQP.
     """
 
@@ -222,10 +258,10 @@ class NmpcOracle(TrueModelOracle):
     def __init__(self, system, config=None, u_min=-5.0, u_max=5.0, horizon_steps: int = 20, dt: float = 0.01,
                  q: float = 1.0, r: float = 1.0, terminal="lqr", *, substeps: int = 4, clf=None, law=None,
                  ipopt_tol: float = 1e-8, ipopt_max_iter: int = 500, ipopt_options: dict | None = None,
-                 record_prediction: bool = False):
+                 record_prediction: bool = False, init: str = "lqr"):
         ca = _casadi()
         self._setup(system, config, u_min, u_max, horizon_steps, dt, q, r, terminal, substeps, clf, law,
-                    record_prediction)
+                    record_prediction, init)
         Xt = self.terminal_matrix
         f, self.model_source = symbolic_dynamics(system, with_source=True)
         xs = ca.SX.sym("x", self.n)
@@ -254,6 +290,9 @@ class NmpcOracle(TrueModelOracle):
         self._g0 = np.zeros(N * n)
         self.reset()
 
+    def _one_step(self, x, u) -> np.ndarray:
+        return np.asarray(self.step_fn(x, u), float).reshape(-1)
+
     def simulate(self, x0, U) -> np.ndarray:
         """The oracle's own prediction (N+1, n) for block inputs U (nb, m)."""
         X = np.empty((self.N + 1, self.n))
@@ -268,7 +307,7 @@ class NmpcOracle(TrueModelOracle):
         region = self._region(z0)
         if not np.all(np.isfinite(x0)):
             return self._fallback(x0, z0, "non-finite state x", region, t0, "not_run", 0)
-        Ubar = self._warm_blocks()
+        Ubar = self._first_guess(x0)
         Xbar = self.simulate(x0, Ubar)
         if not np.all(np.isfinite(Xbar)):
             Xbar = np.tile(x0, (self.N + 1, 1))

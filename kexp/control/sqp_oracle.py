@@ -24,7 +24,8 @@ kexp's compiled machinery instead of CasADi + IPOPT.
   ``'every'`` at every iteration (plain Gauss–Newton).  Measured on Van der Pol (one process, 40 steps):
   horizon 100 — 0.51 ms per step ('kept') against IPOPT's 13.7; horizon 300 — 1.46 ms ('kept'), 5.6 ('step', the
   300×300 factorisation every step) against 37 ms; the objectives agree with IPOPT's to 1e-12 in all of them.
-* **Warm start**: the previous plan shifted by one step; the first step starts from zero inputs.
+* **Warm start**: the previous plan shifted by one step; after a reset, ``init``'s guess (as NmpcOracle's: the LQR
+  feedback rolled out, or zero inputs).
 
 ``ControlStep``: ``iterations`` counts SQP iterations, ``qp_iterations`` DAQP's iterations summed over them.
 """
@@ -57,14 +58,15 @@ class SqpOracle(TrueModelOracle):
 
     def __init__(self, system, config=None, u_min=-5.0, u_max=5.0, horizon_steps: int = 20, dt: float = 0.01,
                  q: float = 1.0, r: float = 1.0, terminal="lqr", *, substeps: int = 4, clf=None, law=None,
-                 tol: float = 1e-12, max_iter: int = 200, hessian: str = "kept", record_prediction: bool = False):
+                 tol: float = 1e-12, max_iter: int = 200, hessian: str = "kept", record_prediction: bool = False,
+                 init: str = "lqr"):
         if not (tol > 0 and isinstance(max_iter, (int, np.integer)) and max_iter >= 1):
             raise ConfigError(f"sqp oracle tol={tol}, max_iter={max_iter}: need tol > 0 and an int max_iter >= 1")
         if hessian not in HESSIAN:
             raise ConfigError(f"sqp oracle hessian={hessian!r}; valid: {HESSIAN}")
         self.hessian = hessian
         self._setup(system, config, u_min, u_max, horizon_steps, dt, q, r, terminal, substeps, clf, law,
-                    record_prediction)
+                    record_prediction, init)
         self.tol, self.max_iter = float(tol), int(max_iter)
         ca = _casadi()
         f, self.model_source = symbolic_dynamics(system, with_source=True)
@@ -72,6 +74,7 @@ class SqpOracle(TrueModelOracle):
         self._dyn = compiled_dynamics(xs, us, f(xs, us))
         n, m, N, nb = self.n, self.m, self.N, self.nb
         self._h = self.dt / self.substeps
+        self._bos1 = np.zeros(1, dtype=np.int64)
         self._sizes_f = self.sizes.astype(float)
         self._wq, self._wr = self.dt * self.q, self.dt * self.r
         self._X = np.empty((N + 1, n))
@@ -92,6 +95,11 @@ class SqpOracle(TrueModelOracle):
     def reset(self) -> None:
         super().reset()
         self._h_valid = False
+
+    def _one_step(self, x, u) -> np.ndarray:
+        X = np.empty((2, self.n))
+        self._dyn.rollout(x, np.asarray(u, float).reshape(1, self.m), self._bos1, self._h, self.substeps, X)
+        return X[1]
 
     def simulate(self, x0, U) -> np.ndarray:
         """The oracle's own prediction (N+1, n) for block inputs U (nb, m)."""
@@ -151,7 +159,7 @@ class SqpOracle(TrueModelOracle):
         region = self._region(z0)
         if not np.all(np.isfinite(x0)):
             return self._fallback(x0, z0, "non-finite state x", region, t0, "not_run", 0)
-        U = np.ascontiguousarray(self._warm_blocks())
+        U = np.ascontiguousarray(self._first_guess(x0))
         status, f, iters, qp_iters = self._solve(x0, U, self.max_iter)
         if status not in ("solved", "max_iter", "stalled"):
             return self._fallback(x0, z0, status, region, t0, status, iters)
