@@ -36,9 +36,8 @@ def _hydra_main(cfg: DictConfig) -> None:
         refused = run_folder.refusal(out_dir)   # its folder holds another run: nothing was written there
         if refused is not None:
             raise refused
-        if sweep_job:  # one line per job (parallel jobs would interleave the model and CLF summaries)
-            print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only, auto_progress=False),
-                           out_dir), flush=True)
+        if sweep_job:  # its warnings only: the kexp process prints its [k/N] line when it ends (resume.PROGRESS)
+            run(cfg, out_dir, echo=_warnings_only, auto_progress=False)
         else:
             run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback
@@ -85,20 +84,6 @@ def _warnings_only(line: str) -> None:
         print(line, flush=True)
 
 
-def job_line(num: int, metrics: dict, out_dir: Path) -> str:
-    """The one line a sweep job prints: its number (as in Hydra's "#0 : overrides" launch line), the verdict and
-    the main metrics of ``run``'s result (``metrics``), and its folder ``out_dir``."""
-    if "metrics" not in metrics:   # system=data without a plant: stopped after the certificate, no loop
-        from .data_only import job_line as identified_line
-        return identified_line(num, metrics, out_dir)
-    m = metrics["metrics"]
-    settle = m.get("settling_time")
-    settle = "inf" if settle is None or not math.isfinite(settle) else f"{settle:.2f} s"
-    return (f"#{num} {'SUCCESS' if m['success'] else 'FAILED'} ({metrics['status']}): ‖x(T)‖ = "
-            f"{m['final_error']:.2e}, J = {m['cost']:.4f}, settling {settle}, max|u| = {m['max_abs_u']:.3f}, "
-            f"fallbacks {m['fallbacks']}, solve median {m['solve_time_median'] * 1e3:.2f} ms; {out_dir}")
-
-
 def main() -> None:
     from .. import __version__
     from . import help as kexp_help
@@ -127,6 +112,8 @@ def _sweep_verdict() -> None:
     if tally is None:
         return
     out, err = tally.closing_lines()
+    if resume.PROGRESS is not None:
+        out.append(resume.PROGRESS.closing_line())
     for line in out:
         print(line, flush=True)
     for line in err:
