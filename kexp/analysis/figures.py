@@ -224,7 +224,7 @@ def main(argv=None) -> None:
                       + (f" ({g['runs'] - g['drawn']} without a usable x0, not drawn)" if g["drawn"] < g["runs"]
                          else ""))
             for f in facts["failed"][:20]:
-                print(f"  failed: {f['job']} {f['overrides']}: {f['reason']}")
+                print(f"  error: {f['job']} {f['overrides']}: {f['reason']}")
             if len(facts["failed"]) > 20:
                 print(f"  ... and {len(facts['failed']) - 20} more (kexp-report lists them all)")
         else:

@@ -131,9 +131,9 @@ def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: 
 
 
 NOT_SETTLED = roa.NOT_SETTLED
-KINDS = (("success", dict(marker="o", color="tab:green")), (NOT_SETTLED, dict(marker="o", color="tab:orange")),
-         ("failed", dict(marker="o", color="tab:red")), ("diverged", dict(marker="x", color="tab:red")),
-         ("job did not complete", dict(marker="x", color="0.5")))
+KINDS = (("settled", dict(marker="o", color="tab:green")), (NOT_SETTLED, dict(marker="o", color="tab:orange")),
+         ("unsettled", dict(marker="o", color="tab:red")), ("diverged", dict(marker="x", color="tab:red")),
+         ("error", dict(marker="x", color="0.5")))
 EDGE = dict(edgecolor="white", linewidth=1.5)   # histogram bars: adjacent bins of one run each stay apart
 RUG_BELOW = 10                                 # fewer values than this: a rug of the values under the histogram
 
@@ -151,10 +151,10 @@ def _sim_settings(path: str) -> tuple[float | None, float | None]:
 
 
 def _kind(row: dict) -> str:
-    """kexp.analysis.roa's kind of a run (success, not settled by T, failed, diverged), a job that did not
-    complete named as such."""
+    """kexp.analysis.roa's kind of a run (settled, unsettled near, unsettled, diverged), a job that did not
+    complete an error."""
     if not row["ok"] and row["status"] != "diverged":
-        return "job did not complete"
+        return "error"
     return roa.run_kind(row, sim_settings(row)[1])
 
 
