@@ -6,7 +6,7 @@
 A job that did not complete is never dropped: it gets a row with its ``reason`` (no summary.json, interrupted,
 diverged, unreadable), and a job that the sweep planned (``multirun.yaml``, basic sweeper) but never started
 gets a row too.  :func:`summarize` condenses the rows per group of identical overrides apart from ``sim.x0``
-(runs, completed, failed, successes, median / worst cost, median solve time, worst p99 solve time).
+(runs, completed, errors, successes, median / worst cost, median solve time, worst p99 solve time).
 """
 from __future__ import annotations
 
@@ -319,8 +319,8 @@ def _max(xs: Iterable[float | None]) -> float | None:
 
 
 def summarize(rows: list[dict]) -> list[dict]:
-    """Per group of identical overrides apart from ``sim.x0``: runs, completed, failed, successes (a failed job
-    counts as no success), median / worst cost and median solve time over the runs that have them."""
+    """Per group of identical overrides apart from ``sim.x0``: runs, completed, errors (runs that stopped with an
+    error, or never wrote a completed summary), successes (settled runs; an error counts as not settled), median / worst cost and median solve time over the runs that have them."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(r.get("_group_key", ()), []).append(r)
@@ -330,7 +330,7 @@ def summarize(rows: list[dict]) -> list[dict]:
         ok = sum(r["ok"] for r in members)
         succ = sum(bool(r["success"]) for r in members)
         out.append({
-            "group": members[0].get("group", "(all)"), "runs": n, "completed": ok, "failed": n - ok,
+            "group": members[0].get("group", "(all)"), "runs": n, "completed": ok, "errors": n - ok,
             "successes": succ, "success_rate": succ / n,
             "cost_median": _median(r["cost"] for r in members), "cost_worst": _max(r["cost"] for r in members),
             "solve_median_ms": _median(r["solve_median_ms"] for r in members),

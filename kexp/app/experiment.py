@@ -406,7 +406,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
             echo(f"warning: {warning}")
             metrics.setdefault("warnings", []).append(warning)
         write_summary()
-    echo(f"result: {'SUCCESS' if m.success else 'FAILED'} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
+    from .sweep_progress import SETTLED, UNSETTLED   # one word per outcome, as a sweep's job lines
+    echo(f"result: {SETTLED if m.success else UNSETTLED} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
          f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "

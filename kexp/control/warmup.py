@@ -39,7 +39,10 @@ def warm_up() -> None:
     SqpOracle(VanDerPol(), None, horizon_steps=10).step(np.array([0.3, -0.2]))
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    from ..cli import Parser
+    Parser(prog="kexp-compile", description="Compile kexp's controller kernels into the per-install cache now, so "
+           "that no later run waits for them (about a minute once; a second when the cache is filled).").parse_args(argv)
     from .jit_cache import _state, configure
     where = configure()
     start = time.perf_counter()
