@@ -5,7 +5,7 @@ container build.  With the cache already filled it only loads the kernels (about
 It builds two small LMPCs and runs them a few steps: Van der Pol (one input: the polynomial zero-order-hold path)
 and the slow-manifold system with two inputs (the exponential path), which between them call every kernel a run
 calls, with the argument types a run passes; and, where casadi is installed, the SQP oracle on Van der Pol (its
-kernels and that system's generated dynamics; another system's dynamics compile on its first use, in seconds).
+kernels and that system's generated dynamics; another system's dynamics compile on its first use, in seconds)."""
 from __future__ import annotations
 
 import sys
