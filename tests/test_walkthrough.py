@@ -1,4 +1,4 @@
-"""The README's walk-through "Your system, known only through a folder of CSV runs", run as written: its Python
+"""The docs' walk-through (docs/guides/data-from-files.md) "Your system, known only through a folder of CSV runs", run as written: its Python
 block writes the rig's CSV runs, its first command identifies from them with B and b regressed (G unused) and
 stabilises the closed loop, with a log and a Rerun recording."""
 import json
@@ -8,13 +8,13 @@ import sys
 from pathlib import Path
 from cli import console_script
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "guides" / "data-from-files.md"
 
 
 def _section() -> str:
-    text = README.read_text()
-    start = text.index("### Your system, known only through a folder of CSV runs")
-    return text[start:text.index("\n### ", start + 10)]
+    text = PAGE.read_text()
+    start = text.index("\n## Your system, known only through a folder of CSV runs")
+    return text[start:text.index("\n## ", start + 10)]
 
 
 def test_the_csv_walkthrough_runs_as_written(tmp_path):
