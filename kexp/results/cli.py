@@ -14,7 +14,8 @@ a system without one (a plant with no formula: no oracle can run) gets "n/a (no 
 The initial condition is the columns x0_1 … x0_n, n the number of states (the runs' own x0; 2 for the built-in
 systems, whose column order is unchanged), and a run is known by its full x0.  ``<system>_ocp.csv`` is no row:
 it is the optimal-control feasibility check the plants view reads (kexp.results.plants_view), skipped here.
-:func:`kexp.results.csvfiles.read_csv` checks a CSV as ``collect`` writes it (also for ``kexp-figures roa --oracle``): bad input is a
+:func:`kexp.results.csvfiles.read_csv` checks a CSV as ``collect`` writes it (also for ``kexp-figures roa
+--oracle``): bad input is a
 :class:`~kexp.results.aggregate.ReportError` of one line naming the file, the line and the column.
 This module is kexp-results' argument parsing and dispatch: the only one in kexp.results that imports the tables
 (table, robustness, plants_view) and reproduce; they read the CSVs through kexp.results.csvfiles.
