@@ -123,3 +123,15 @@ def test_results_cli_is_the_only_module_that_imports_the_tables():
     leaves = {"kexp.results.table", "kexp.results.robustness", "kexp.results.plants_view", "kexp.results.reproduce"}
     importers = sorted(m for m, ts in g.items() if m.startswith("kexp.results") and ts & leaves)
     assert importers == ["kexp.results.cli"]
+
+
+def test_every_module_of_the_two_rooms_says_what_it_holds():
+    """Each module of kexp.app and kexp.results (their __init__ included) starts with a docstring; the packages'
+    say which room they are."""
+    missing = [str(p.relative_to(ROOT)) for room in ("app", "results") for p in sorted((ROOT / room).glob("*.py"))
+               if not (ast.get_docstring(ast.parse(p.read_text(encoding="utf-8"))) or "").strip()]
+    assert missing == []
+    assert ast.get_docstring(ast.parse((ROOT / "app" / "__init__.py").read_text())).startswith(
+        "The experiment room: the ``kexp`` command")
+    assert ast.get_docstring(ast.parse((ROOT / "results" / "__init__.py").read_text())).startswith(
+        "The results room")
