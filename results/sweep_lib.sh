@@ -2,9 +2,9 @@
 # conditions of a results row and the sweep that condenses one row into a CSV.
 
 # x0_list LOW HIGH [SEED N]: the N initial conditions np.random.default_rng(SEED).uniform(LOW, HIGH, (2, N)).T
-# (SEED 42, N 100 unless given) as one Hydra list value (kexp.app.reproduce: kexp-results sample knows them too)
+# (SEED 42, N 100 unless given) as one Hydra list value (kexp.results.reproduce: kexp-results sample knows them too)
 x0_list() {
-    python -c "from kexp.app.reproduce import generated_x0, hydra_list; print(hydra_list(generated_x0(${3:-42}, $1, $2, ${4:-100})))"
+    python -c "from kexp.results.reproduce import generated_x0, hydra_list; print(hydra_list(generated_x0(${3:-42}, $1, $2, ${4:-100})))"
 }
 
 # oracle_horizon SYSTEM: the NMPC oracle's horizon in steps.  20 (0.2 s, with the true linearisation's LQR
@@ -34,7 +34,7 @@ sweep_row() {
 
 # x0_box 'L1,…,Ln' 'H1,…,Hn' [SEED N]: the N initial conditions of n states drawn from the box [L_i, H_i] state by
 # state (np.random.default_rng(SEED), SEED 42, N 100 unless given; L_i = H_i fixes state i, e.g. zero velocities)
-# as one Hydra list value (kexp-results x0; kexp.app.reproduce.generated_x0).  x0_box '-1,-1' '1,1' prints what
+# as one Hydra list value (kexp-results x0; kexp.results.reproduce.generated_x0).  x0_box '-1,-1' '1,1' prints what
 # x0_list -1 1 prints.
 x0_box() {
     kexp-results x0 --seed "${3:-42}" -n "${4:-100}" -- "$1" "$2"     # --: a corner may start with '-' 

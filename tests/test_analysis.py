@@ -9,7 +9,7 @@ from kexp.analysis.figures import paper_figure, theorem1_figure
 from kexp.analysis.theorem1 import estimate_constants, measured_error
 from kexp.app.conf import CONF_DIR
 from kexp.app.experiment import run
-from kexp.app.results import table
+from kexp.results.table import table
 
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11", "logging.rrd=false", "logging.progress=false"]

@@ -244,7 +244,7 @@ def test_reproduce_script_reruns_with_a_fresh_cache_of_its_own(tmp_path):
                                   f'ls -A "$KEXP_CACHE_DIR" | wc -l; }} > "{seen}"\n')
     (bin_dir / "kexp-results").write_text(
         f'#!/bin/sh\nif [ "$1" = collect ]; then exit 0; fi\n'
-        f'exec "{sys.executable}" -c "import sys; from kexp.app.results import main; main(sys.argv[1:])" "$@"\n')
+        f'exec "{sys.executable}" -c "import sys; from kexp.results.cli import main; main(sys.argv[1:])" "$@"\n')
     for f in bin_dir.iterdir():
         f.chmod(0o755)
     mine = tmp_path / "my-cache"

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from kexp.app.aggregate import _short_verdict
+from kexp.results.aggregate import _short_verdict
 from kexp.app.conf import CONF_DIR
 from kexp.clf import ClfConfig, QuadraticLyapunov, clf_from_P, synthesize_clf
 from kexp.clf.bound import GAIN_MAX, region_scaled, state_bound

@@ -11,7 +11,7 @@ from kexp.app import help as kexp_help
 from kexp.app.confdir import CONF_DIR
 
 MODULES = {"kexp": "kexp.app.main", "kexp-diff": "kexp.recording.diff", "kexp-render": "kexp.recording.render",
-           "kexp-report": "kexp.app.report", "kexp-results": "kexp.app.results",
+           "kexp-report": "kexp.results.report", "kexp-results": "kexp.results.cli",
            "kexp-figures": "kexp.analysis.figures", "kexp-compile": "kexp.control.warmup"}
 
 

@@ -69,7 +69,7 @@ def test_the_command_identifies_certifies_and_stops_without_a_plant(runs, tmp_pa
     assert all(np.array_equal(getattr(model, a), getattr(fitted.model, a)) for a in _ARRAYS)
     assert summary["model"]["prediction_error"] == pytest.approx(fitted.report["prediction_error"], rel=1e-12)
     # kexp-report counts it as completed (what it set out to do), with no success (no closed loop)
-    from kexp.app.aggregate import aggregate
+    from kexp.results.aggregate import aggregate
     (row,) = aggregate(out)
     assert row["ok"] is True and row["status"] == STATUS and row["success"] is None and row["reason"] == ""
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kexp.analysis.figures import main
-from kexp.app.results import COLUMNS
+from kexp.results.csvfiles import COLUMNS
 from kexp.recording import RunLogger
 
 from cli import refused, run_main

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kexp.app.results import main
+from kexp.results.cli import main
 from test_results_cli import run_main
 
 PLANTS = Path(__file__).resolve().parents[1] / "results" / "plants"

@@ -7,7 +7,7 @@ import pytest
 
 from kexp.analysis.figures import main as figures_main
 from kexp.analysis.region_map import RegionMapError, compare, read_results, region_map
-from kexp.app.results import COLUMNS
+from kexp.results.csvfiles import COLUMNS
 
 
 def _write(path, x0s, success, cost):
@@ -79,7 +79,7 @@ def test_committed_regions_table_is_the_docs():
     includes it (the far-region and tight-bound rows of issue 13 are never typed by hand)."""
     from pathlib import Path
 
-    from kexp.app.results import table
+    from kexp.results.table import table
     root = Path(__file__).resolve().parents[1]
     csvs = sorted((root / "results" / "regions").glob("*.csv"))
     committed = root / "results" / "regions.md"
@@ -94,7 +94,7 @@ def test_committed_region_map_table_is_the_docs():
     row's 100 and default_rng(43)'s 300), and docs/results.md includes it."""
     from pathlib import Path
 
-    from kexp.app.results import table
+    from kexp.results.table import table
     root = Path(__file__).resolve().parents[1]
     csvs = sorted((root / "results" / "regions" / "map").glob("*.csv"))
     committed = root / "results" / "regions_map.md"
@@ -106,7 +106,7 @@ def test_committed_region_map_table_is_the_docs():
 
 
 def test_a_panel_is_labelled_by_system_and_configuration():
-    """The configuration follows the last '_' (kexp.app.results.split_name): a system may be named cart_pendulum."""
+    """The configuration follows the last '_' (kexp.results.csvfiles.split_name): a system may be named cart_pendulum."""
     from pathlib import Path
     from kexp.analysis.region_map import _label
     assert _label(Path("r/cart_pendulum_lmpc-reg.csv")) == "cart_pendulum: lmpc-reg"

@@ -237,9 +237,9 @@ def test_a_bug_leaves_an_error_summary_not_a_running_one(tmp_path):
     ("kexp.recording.diff", [], "kexp-diff: error: the following arguments are required: a, b (see kexp-diff --help)"),
     ("kexp.recording.render", ["a.mcap", "--bogus"],
      "kexp-render: error: unrecognized arguments: --bogus (see kexp-render --help)"),
-    ("kexp.app.report", [], "kexp-report: error: the following arguments are required: sweep_dir (see kexp-report "
+    ("kexp.results.report", [], "kexp-report: error: the following arguments are required: sweep_dir (see kexp-report "
                             "--help)"),
-    ("kexp.app.results", ["nope"], "kexp-results: error: argument cmd: invalid choice: 'nope' (choose from "
+    ("kexp.results.cli", ["nope"], "kexp-results: error: argument cmd: invalid choice: 'nope' (choose from "
                                    "'collect', 'table', 'robustness', 'sample', 'compare', 'plants', 'x0') "
                                    "(see kexp-results --help)"),
     ("kexp.analysis.figures", ["paper"], "kexp-figures: error: the following arguments are required: source, "

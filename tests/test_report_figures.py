@@ -13,7 +13,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
 from kexp.analysis.region_map import compare, read_results, region_map  # noqa: E402
-from kexp.app import report as rep  # noqa: E402
+from kexp.results import report as rep  # noqa: E402
 
 from test_region_map import _write  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""Re-running committed results rows (kexp.app.reproduce, kexp-results sample / compare, results/reproduce.sh):
+"""Re-running committed results rows (kexp.results.reproduce, kexp-results sample / compare, results/reproduce.sh):
 the sampled x0 are the row scripts' full-precision ones, the comparison's verdicts per column and tolerance, the
 CLI's exit codes, and the script's sweeps and refusals with kexp stubbed."""
 import csv
@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kexp.app.aggregate import ReportError
-from kexp.app.reproduce import GENERATORS, compare, hydra_list, sample
-from kexp.app.results import COLUMNS, main
+from kexp.results.aggregate import ReportError
+from kexp.results.reproduce import GENERATORS, compare, hydra_list, sample
+from kexp.results.cli import main
+from kexp.results.csvfiles import COLUMNS
 
 from cli import refused, run_main
 
@@ -193,7 +194,7 @@ def _stubbed_repo(tmp_path, collected_rows):
     collected = _write(tmp_path / "collected.csv", collected_rows)
     (bin_dir / "kexp-results").write_text(
         f'#!/bin/sh\nif [ "$1" = collect ]; then mkdir -p "$5" && cp "{collected}" "$5/$3.csv"; exit 0; fi\n'
-        f'exec "{sys.executable}" -c "import sys; from kexp.app.results import main; main(sys.argv[1:])" "$@"\n')
+        f'exec "{sys.executable}" -c "import sys; from kexp.results.cli import main; main(sys.argv[1:])" "$@"\n')
     for f in bin_dir.iterdir():
         f.chmod(0o755)
     return root, {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}

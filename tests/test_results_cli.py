@@ -7,7 +7,8 @@ import sys
 
 import pytest
 
-from kexp.app.results import COLUMNS, main
+from kexp.results.cli import main
+from kexp.results.csvfiles import COLUMNS
 
 from cli import refused, run_main
 
@@ -123,7 +124,7 @@ def test_valid_csvs_still_give_the_tables(tmp_path, capsys):
 def test_a_system_name_may_hold_an_underscore(tmp_path, capsys):
     """<system>_<configuration>: the configuration follows the last underscore (cart_pendulum_lmpc is the system
     cart_pendulum); before, the first one split it, so the row's system was 'cart' and its oracle was not found."""
-    from kexp.app.results import split_name
+    from kexp.results.csvfiles import split_name
     assert split_name("results/cart_pendulum_lmpc-reg.csv") == ("cart_pendulum", "lmpc-reg")
     assert split_name("x/pendulum-u0.5_nmpc.csv") == ("pendulum-u0.5", "nmpc")
     lmpc = _write(tmp_path / "my_rig_lmpc.csv")
@@ -176,7 +177,7 @@ def test_collect_takes_a_plain_name_and_a_folder(tmp_path, capsys):
 def test_the_installed_command_prints_one_line_and_no_traceback(tmp_path):
     p = tmp_path / "vdp_lmpc.csv"
     p.write_bytes(MCAP_BYTES)
-    proc = subprocess.run([sys.executable, "-m", "kexp.app.results", "table", str(p)], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "kexp.results.cli", "table", str(p)], capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.splitlines() == [f"kexp-results: error: {p}: not a text CSV (binary data: an .mcap log?); "
@@ -189,7 +190,7 @@ def test_a_reader_that_leaves_early_ends_the_output_quietly(tmp_path, argv):
     with exit code 2; now nothing on stderr and the exit code is the command's own (compare: its verdict)."""
     a = _write(tmp_path / "vanderpol_lmpc.csv")
     args = ["table", str(a)] if argv == ["table"] else ["compare", str(a), str(a)]
-    proc = subprocess.Popen([sys.executable, "-c", "import sys; from kexp.app.results import main; main()", *args],
+    proc = subprocess.Popen([sys.executable, "-c", "import sys; from kexp.results.cli import main; main()", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.close()               # no reader left: the command's first write meets a closed pipe
     err = proc.stderr.read().decode()

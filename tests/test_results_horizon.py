@@ -6,7 +6,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-from kexp.app.results import table
+from kexp.results.table import table
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from kexp.analysis.region_map import RegionMapError, read_results
-from kexp.app import reproduce
-from kexp.app.aggregate import ReportError
-from kexp.app.results import COLUMNS, columns, main
+from kexp.results import reproduce
+from kexp.results.aggregate import ReportError
+from kexp.results.cli import main
+from kexp.results.csvfiles import COLUMNS, columns
 
 from cli import console_script, refused, run_main
 

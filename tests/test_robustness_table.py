@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kexp.app.aggregate import ReportError
-from kexp.app.results import COLUMNS
-from kexp.app.results import table as results_table
-from kexp.app.robustness import load, table
+from kexp.results.aggregate import ReportError
+from kexp.results.csvfiles import COLUMNS
+from kexp.results.table import table as results_table
+from kexp.results.robustness import load, table
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 

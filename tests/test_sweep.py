@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from kexp.app import aggregate as agg
-from kexp.app import report as rep
+from kexp.results import aggregate as agg
+from kexp.results import report as rep
 
 QUICK = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=2.0", "clf.grid=11", "logging.rrd=false"]
@@ -24,7 +24,7 @@ def _script(name: str) -> list[str]:
     for cand in (Path(sys.executable).parent / name, shutil.which(name)):
         if cand and Path(cand).exists():
             return [str(cand)]
-    return [sys.executable, "-m", {"kexp": "kexp.app.main", "kexp-report": "kexp.app.report"}[name]]
+    return [sys.executable, "-m", {"kexp": "kexp.app.main", "kexp-report": "kexp.results.report"}[name]]
 
 
 def _kexp_multirun(cwd: Path, sweep_dir: Path, *args: str, timeout=180) -> subprocess.CompletedProcess:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from kexp.app import aggregate as agg
+from kexp.results import aggregate as agg
 from kexp.app import resume
 from test_sweep import QUICK, _kexp_multirun, _script
 

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..app.aggregate import ReportError
-from ..app.results import oserror, split_name
+from ..results.aggregate import ReportError
+from ..results.csvfiles import oserror, split_name
 from ..cli import Parser
 from ..errors import KexpError, SystemDefinitionError
 from ..recording.reader import LogError, log_path, read_log

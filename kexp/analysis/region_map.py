@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..app.aggregate import ReportError
-from ..app.results import read_csv, split_name, x0_columns, x0_key
+from ..results.aggregate import ReportError
+from ..results.csvfiles import read_csv, split_name, x0_columns, x0_key
 from ..errors import KexpError
 from .roa import _plt
 
@@ -40,7 +40,7 @@ class RegionMapError(KexpError):
 
 def read_results(path: str | Path) -> dict[tuple[float, float], dict]:
     """{x0: {'ok': completed, 'success': bool, 'cost': float}} from a results CSV of a 2-state system, checked as
-    kexp-results checks it (:func:`kexp.app.results.read_csv`); RegionMapError names what is wrong with the file,
+    kexp-results checks it (:func:`kexp.results.csvfiles.read_csv`); RegionMapError names what is wrong with the file,
     or says that a map draws 2 states when the CSV's x0 has another number (x0_1 … x0_n)."""
     try:
         rows = read_csv(path)

@@ -89,7 +89,7 @@ def success_rule(sims: list[dict]) -> str:
 
 
 def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
-    """Split ``kexp.app.aggregate.aggregate`` rows into groups: the report's group (overrides apart from sim.x0)
+    """Split ``kexp.results.aggregate.aggregate`` rows into groups: the report's group (overrides apart from sim.x0)
     and the system.  Returns [(label, rows)] in the order the groups first appear; a failed job whose system is
     unknown joins its report group when that group has one system."""
     by_label: dict[str, list[dict]] = {}
@@ -143,13 +143,13 @@ def _group_meta(members: list[dict]) -> tuple[int, list[str], list, dict]:
 
 
 def roa_figure(sweep: str | Path, out: str | Path, *, max_groups: int = MAX_GROUPS) -> tuple[Path, dict]:
-    """Draw the sweep folder's runs (``kexp.app.aggregate.aggregate``) into the PNG ``out``: one row of panels per
+    """Draw the sweep folder's runs (``kexp.results.aggregate.aggregate``) into the PNG ``out``: one row of panels per
     group, one panel per state pair for n > 2.  Returns (out, facts) with facts = {'groups': [{'label', 'n',
     'runs', 'successes', 'not_settled', 'drawn', 'panels': [panel titles], 'T', 'tol'}], 'failed': [{'job', 'overrides', 'reason'}]}.
 
-    Raises :class:`kexp.app.aggregate.ReportError` if the folder holds no runs and :class:`RoaError` (one line,
+    Raises :class:`kexp.results.aggregate.ReportError` if the folder holds no runs and :class:`RoaError` (one line,
     listing the groups) if it holds more than ``max_groups`` groups."""
-    from ..app.aggregate import aggregate
+    from ..results.aggregate import aggregate
     rows = aggregate(sweep)
     groups = group_rows(rows)
     if len(groups) > max_groups:

@@ -7,6 +7,7 @@ import contextlib
 import hashlib
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -178,12 +179,93 @@ def run(cfg: Any, out_dir: str | Path = ".", *, echo=print, auto_progress: bool 
         raise OutputError(fault_message(exc, out_dir)) from exc
 
 
+@dataclass(frozen=True)
+class Setup:
+    """An experiment's checked configuration (:func:`_prepare`), what every later stage reads: the run folder and
+    its echo, the system (with an external plant, if any), the built config sections, the closed loop's simulation
+    (``looped`` False: system=data without a plant, no loop), the plant the loop runs on and the cache."""
+    cfg: Any
+    cfg_dict: dict
+    chash: str
+    out_dir: Path
+    echo: Any
+    auto_progress: bool | None
+    system: Any
+    ext_plant: Any
+    plant_cfg: Any
+    sampler: Any
+    data_cfg: Any
+    ident_cfg: Any
+    spec: Any
+    looped: bool
+    file_data: Any
+    clf_cfg: Any
+    data_noise: Any
+    data_smooth: Any
+    sim_cfg: Any
+    x0: Any
+    open_loop: bool
+    plant: Any
+    plant_params: dict
+    plant_info: dict
+    log_cfg: dict
+    cache: Any
+
+    @property
+    def summary_path(self) -> Path:
+        return self.out_dir / "summary.json"
+
+
+class _Clock:
+    """Where the job's time goes (summary.json "timing", benchmarks/sweep.py): seconds per phase, in order."""
+
+    def __init__(self, t0: float):
+        self.t0, self.phases, self.mark = t0, {}, t0
+
+    def phase(self, name: str) -> None:
+        """Add the seconds since the last mark to phase ``name``."""
+        now = time.perf_counter()
+        self.phases[name] = self.phases.get(name, 0.0) + now - self.mark
+        self.mark = now
+
+    @property
+    def wall_s(self) -> float:
+        """The phases' sum: the run up to the last mark."""
+        return self.mark - self.t0
+
+
 def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: contextlib.ExitStack) -> dict:
-    """:func:`run`'s work, in ``out_dir`` (made, holding no run); ``stack`` closes an external plant."""
-    t0 = time.perf_counter()
+    """:func:`run`'s work, in ``out_dir`` (made, holding no run); ``stack`` closes an external plant.  The stages in
+    order: prepare (every config section checked, budgets) → identify (data, model) → certify (CLF) → controller →
+    log → closed loop → record (log closed, metrics) → finish (summary.json, run.rrd, the result lines)."""
+    clock = _Clock(time.perf_counter())
+    s = _prepare(cfg, out_dir, echo, auto_progress, stack)
+    create_exclusive(s.summary_path, json.dumps({"status": "running", "completed": False, "config_hash": s.chash},
+                                                indent=2))
+    clock.phase("setup_s")
+    model, mkey, model_path = _identify_model(s)
+    clock.phase("model_s")
+    perturbation = _announce_model(s, model)
+    clf = _certify(s, model, mkey)
+    clock.phase("clf_s")
+    if not s.looped:   # system=data without a plant: the model, its report and the certificate are the run
+        return _finish_without_loop(s, model, model_path, perturbation, clf, clock)
+    controller = _controller(s, model, clf)
+    clock.phase("controller_s")   # includes loading the compiled kernels (numba's cache) on a worker's first job
+    logger = _open_log(s, model, clf)
+    clock.phase("log_setup_s")
+    result, logging_s = _closed_loop(s, controller, model, clf, logger)
+    clock.phase("closed_loop_s")
+    metrics, files = _record(s, result, logging_s, controller, model, model_path, clf, perturbation, logger, clock)
+    _finish(s, result, metrics, files, logger, clock)
+    return metrics
+
+
+def _prepare(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: contextlib.ExitStack) -> Setup:
+    """Stage 1: every config section validated and every budget checked before the long computations start; an
+    external plant built (and closed by ``stack``); the plant the loop runs on and the cache."""
     cfg_dict = config_dict(cfg)
     chash = config_hash(cfg_dict)
-    # every config section is validated before the long computations start
     plant_cfg = build_plant_config(cfg.get("plant"))
     ext_plant = None
     data_only = is_data_system(cfg_dict["system"])
@@ -237,30 +319,27 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     check_sdp_budget(clf_cfg, k_max)   # an SDP CLF over the memory budget: refused before any data
     if looped:
         check_run_size(sim_cfg, system, k_max, sampler if file_data is None else None, data_cfg)
-    summary_path = out_dir / "summary.json"
-    create_exclusive(summary_path, json.dumps({"status": "running", "completed": False, "config_hash": chash},
-                                              indent=2))
-    # where the job's time goes (summary.json "timing", benchmarks/sweep.py): seconds per phase, in order
-    phases: dict[str, float] = {}
-    mark = [t0]
+    return Setup(cfg, cfg_dict, chash, out_dir, echo, auto_progress, system, ext_plant, plant_cfg, sampler, data_cfg,
+                 ident_cfg, spec, looped, file_data, clf_cfg, data_noise, data_smooth, sim_cfg, x0, open_loop, plant,
+                 plant_params, plant_info, log_cfg, cache)
 
-    def phase(name: str) -> None:
-        now = time.perf_counter()
-        phases[name] = phases.get(name, 0.0) + now - mark[0]
-        mark[0] = now
 
-    phase("setup_s")
-
+def _identify_model(s: Setup):
+    """Stage 2: the data (simulated, recorded or from the plant; noise and smoothing as configured) and the Koopman
+    model identified from it, or both from the cache; the model saved as model.npz.  Returns (model, its cache key,
+    model.npz's path)."""
     def identify_now():
-        if data_cfg.source.kind == "plant":
-            dataset = _plant_data(system, ext_plant, sampler, data_cfg, auto_progress, log_cfg["progress"])
+        if s.data_cfg.source.kind == "plant":
+            dataset = _plant_data(s.system, s.ext_plant, s.sampler, s.data_cfg, s.auto_progress,
+                                  s.log_cfg["progress"])
         else:
-            dataset = collect(system, sampler, data_cfg) if file_data is None else file_data
-        rms = data_rms(dataset, system.equilibrium)
-        dataset = add_measurement_noise(dataset, data_noise, x_eq=system.equilibrium).with_smoothing(data_smooth)
-        dictionary = build_dictionary(cfg["dictionary"], system.n, dataset, system.equilibrium)
+            dataset = collect(s.system, s.sampler, s.data_cfg) if s.file_data is None else s.file_data
+        rms = data_rms(dataset, s.system.equilibrium)
+        dataset = add_measurement_noise(dataset, s.data_noise, x_eq=s.system.equilibrium).with_smoothing(
+            s.data_smooth)
+        dictionary = build_dictionary(s.cfg["dictionary"], s.system.n, dataset, s.system.equilibrium)
         check_dictionary_range(dataset.stats(), dictionary.degree, dictionary.scale, dictionary.center)
-        model = identify(system, dataset, dictionary, ident_cfg)
+        model = identify(s.system, dataset, dictionary, s.ident_cfg)
         # kept with the cached model: a relative sim.noise is a fraction of these (clean data, about x_eq)
         model.report["data_rms"] = rms.tolist()
         model.report["data_noise_std"] = None if dataset.report.noise_std is None else list(
@@ -270,60 +349,86 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
 
     # recorded data: the files' content (not only their path) determines the model
     # data from a plant: its kind, id and package versions (an environment's physics) determine the model too
-    digest = file_data.report.digest if file_data is not None else (
-        json.dumps(plain({"plant": cfg_dict.get("plant"), **plant_info}), sort_keys=True)
-        if data_cfg.source.kind == "plant"
+    digest = s.file_data.report.digest if s.file_data is not None else (
+        json.dumps(plain({"plant": s.cfg_dict.get("plant"), **s.plant_info}), sort_keys=True)
+        if s.data_cfg.source.kind == "plant"
         else None)
-    mkey = model_key(cfg_dict, FORMAT_VERSION, digest)
-    model = cache.get_or_create(mkey, identify_now, lambda m, p: m.save(p), KoopmanBilinearModel.load)
-    model_path = _save_model(model, out_dir / "model.npz")
-    phase("model_s")
-    echo(model.summary())
-    rms = model.report.get("data_rms")
-    perturbation = _perturbation(system, plant_params, model, sim_cfg)
-    if ext_plant is not None:   # the log says what the loop ran on (kexp's integrator: the log as it always was)
-        perturbation["plant"].update(kind=plant_cfg.kind, id=plant_info["id"])
+    mkey = model_key(s.cfg_dict, FORMAT_VERSION, digest)
+    model = s.cache.get_or_create(mkey, identify_now, lambda m, p: m.save(p), KoopmanBilinearModel.load)
+    return model, mkey, _save_model(model, s.out_dir / "model.npz")
+
+
+def _announce_model(s: Setup, model) -> dict:
+    """The model's summary and the run's perturbation (noise, plant mismatch) echoed; returns the perturbation
+    (logged and in summary.json)."""
+    s.echo(model.summary())
+    perturbation = _perturbation(s.system, s.plant_params, model, s.sim_cfg)
+    if s.ext_plant is not None:   # the log says what the loop ran on (kexp's integrator: the log as it always was)
+        perturbation["plant"].update(kind=s.plant_cfg.kind, id=s.plant_info["id"])
     for line in _perturbation_lines(perturbation):
-        echo(line)
-    clf = cache.get_or_create(
-        clf_key(mkey, cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max),
-        lambda: synthesize_clf(model, clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
-                               law_params=spec.law_params, progress=echo),
-        save_clf, lambda p: load_clf(p, model, clf_cfg))
-    phase("clf_s")
-    if not looped:   # system=data without a plant: the model, its report and the certificate are the run
-        echo(clf.summary())
-        metrics = identified_metrics(chash, system, _model_info(model), perturbation["noise"], clf, _versions(),
-                                     lock_info().to_dict(), cache, model_path.name)
-        phase("finish_s")
-        metrics.update(timing=phases, wall_time_s=mark[0] - t0)
-        write_json(summary_path, plain(metrics))
-        echo(f"result: identified and certified, no closed loop (no plant): k = {model.k}, CLF {clf.status}")
-        echo(f"files: {out_dir.resolve()} (model.npz, summary.json)")
-        return metrics
-    # the true-model baselines (LQR, NMPC oracle) know the plant they control, mismatch included
-    controller = build_controller(spec, plant, model, clf,
-                                  prediction_every=log_cfg["prediction_every"] if log_cfg["mcap"] else 0,
-                                  ext_plant=ext_plant)
+        s.echo(line)
+    return perturbation
+
+
+def _certify(s: Setup, model, mkey: str):
+    """Stage 3: the control Lyapunov function of ``model`` for the controller's law and input bounds (or the
+    cache's)."""
+    spec = s.spec
+    return s.cache.get_or_create(
+        clf_key(mkey, s.cfg_dict, spec.law, spec.law_params, spec.u_min, spec.u_max),
+        lambda: synthesize_clf(model, s.clf_cfg, law=spec.law, u_min=spec.u_min, u_max=spec.u_max,
+                               law_params=spec.law_params, progress=s.echo),
+        save_clf, lambda p: load_clf(p, model, s.clf_cfg))
+
+
+def _finish_without_loop(s: Setup, model, model_path: Path, perturbation: dict, clf, clock: _Clock) -> dict:
+    """The end of a run with no closed loop (system=data without a plant): summary.json and the result lines."""
+    s.echo(clf.summary())
+    metrics = identified_metrics(s.chash, s.system, _model_info(model), perturbation["noise"], clf, _versions(),
+                                 lock_info().to_dict(), s.cache, model_path.name)
+    clock.phase("finish_s")
+    metrics.update(timing=clock.phases, wall_time_s=clock.wall_s)
+    write_json(s.summary_path, plain(metrics))
+    s.echo(f"result: identified and certified, no closed loop (no plant): k = {model.k}, CLF {clf.status}")
+    s.echo(f"files: {s.out_dir.resolve()} (model.npz, summary.json)")
+    return metrics
+
+
+def _controller(s: Setup, model, clf):
+    """Stage 4: the controller of the spec; the true-model baselines (LQR, NMPC oracle) know the plant they control,
+    mismatch included."""
+    controller = build_controller(s.spec, s.plant, model, clf,
+                                  prediction_every=s.log_cfg["prediction_every"] if s.log_cfg["mcap"] else 0,
+                                  ext_plant=s.ext_plant)
     if getattr(controller, "linearisation", None) is not None:   # the LQR on the plant's numerical linearisation
-        echo(controller.linearisation.describe())
-    echo(clf.summary())
-    phase("controller_s")   # includes loading the compiled kernels (numba's cache) on a worker's first job
-    logger = None
-    if log_cfg["mcap"]:
-        kw = dict(flush_every=log_cfg["flush_every"], prediction_every=log_cfg["prediction_every"])
-        if log_cfg["writer"] == "process":   # the last step's time: the child has the last second framed by close
-            logger = ProcessRunLogger(out_dir / "run.mcap", last_step=(sim_cfg.n_steps - 1) * sim_cfg.dt, **kw)
-        else:
-            logger = RunLogger(out_dir / "run.mcap", **kw)
-        logger.log_config(cfg_dict, chash)
-        logger.log_model(model)
-        omega_r = level_set_boundary(model, clf.lyap, clf.r)
-        logger.log_clf(clf, omega_r, omega_r if clf.r_hat == clf.r else level_set_boundary(model, clf.lyap, clf.r_hat))
-    phase("log_setup_s")
+        s.echo(controller.linearisation.describe())
+    s.echo(clf.summary())
+    return controller
+
+
+def _open_log(s: Setup, model, clf):
+    """Stage 5: run.mcap opened (in this process or a writer process) with the config, the model and the CLF's
+    level sets; None when logging.mcap is off."""
+    if not s.log_cfg["mcap"]:
+        return None
+    kw = dict(flush_every=s.log_cfg["flush_every"], prediction_every=s.log_cfg["prediction_every"])
+    if s.log_cfg["writer"] == "process":   # the last step's time: the child has the last second framed by close
+        logger = ProcessRunLogger(s.out_dir / "run.mcap", last_step=(s.sim_cfg.n_steps - 1) * s.sim_cfg.dt, **kw)
+    else:
+        logger = RunLogger(s.out_dir / "run.mcap", **kw)
+    logger.log_config(s.cfg_dict, s.chash)
+    logger.log_model(model)
+    omega_r = level_set_boundary(model, clf.lyap, clf.r)
+    logger.log_clf(clf, omega_r, omega_r if clf.r_hat == clf.r else level_set_boundary(model, clf.lyap, clf.r_hat))
+    return logger
+
+
+def _closed_loop(s: Setup, controller, model, clf, logger):
+    """Stage 6: the closed loop from x0 on the plant, each step logged, with a progress bar.  Returns (the
+    closed-loop result, the seconds spent logging); a failure abandons the log (the steps so far stay)."""
     log_seconds = [0.0]
-    bar = Progress(sim_cfg.n_steps, f"{system.name} closed loop",
-                   enabled=auto_progress if log_cfg["progress"] == "auto" else bool(log_cfg["progress"]))
+    bar = Progress(s.sim_cfg.n_steps, f"{s.system.name} closed loop",
+                   enabled=s.auto_progress if s.log_cfg["progress"] == "auto" else bool(s.log_cfg["progress"]))
 
     def on_step(rec, step):
         if logger is not None:
@@ -334,49 +439,56 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
 
     try:
         # BLAS threads on tiny products cost 10-100× (design §2.11); a failed write names the log
-        with threadpool_limits(limits=1), writing(out_dir / "run.mcap"):
-            result = closed_loop(plant, controller, x0, sim_cfg, model=model, lyap=clf.lyap, open_loop=open_loop,
-                                 on_step=on_step, noise_scale=rms, plant=ext_plant)
+        with threadpool_limits(limits=1), writing(s.out_dir / "run.mcap"):
+            result = closed_loop(s.plant, controller, s.x0, s.sim_cfg, model=model, lyap=clf.lyap,
+                                 open_loop=s.open_loop, on_step=on_step, noise_scale=model.report.get("data_rms"),
+                                 plant=s.ext_plant)
     except BaseException:
         if logger is not None:
             logger.abandon()   # the steps so far stay in run.mcap
         raise
     finally:
         bar.close()
-    phase("closed_loop_s")
+    return result, log_seconds[0]
+
+
+def _record(s: Setup, result, logging_s: float, controller, model, model_path: Path, clf, perturbation: dict,
+            logger, clock: _Clock) -> tuple[dict, dict]:
+    """Stage 7: the log's last messages written and the log closed; the run's metrics (summary.json's content).
+    Returns (metrics, {role: file name})."""
     control_s = float(sum(r.solve_time for r in result.records))
-    m = result.metrics
-    mdict = m.to_dict()
+    mdict = result.metrics.to_dict()
     deterministic = {k: v for k, v in mdict.items() if not k.startswith("solve_time")}
     timing = {k: v for k, v in mdict.items() if k.startswith("solve_time")}
     versions = _versions()
-    versions.update(plant_info["versions"])
+    versions.update(s.plant_info["versions"])
     lock = lock_info().to_dict()
     files = {"model": model_path.name}
     if logger is not None:
         if result.open_loop is not None:
-            logger.log_open_loop(np.arange(len(result.open_loop)) * sim_cfg.dt, result.open_loop)
+            logger.log_open_loop(np.arange(len(result.open_loop)) * s.sim_cfg.dt, result.open_loop)
         t_end = float(result.t[-1])
         logger.log_summary(t_end, result.status, result.message, deterministic, completed=True,
                            perturbation=perturbation)
         paced = {"realtime": result.realtime.to_dict()} if result.realtime is not None else {}   # sim.realtime
-        logger.log_run_info(t_end, versions, {**timing, **paced, "wall_time_s": time.perf_counter() - t0},
-                            lock=lock, plant=plant_info)
+        logger.log_run_info(t_end, versions, {**timing, **paced, "wall_time_s": time.perf_counter() - clock.t0},
+                            lock=lock, plant=s.plant_info)
         with writing(logger.path):
             logger.close()
         files["mcap"] = logger.path.name
+    cache = s.cache
     metrics = {
         "status": result.status,
         "completed": True,
         "message": result.message,
-        "config_hash": chash,
-        "system": system.name,
+        "config_hash": s.chash,
+        "system": s.system.name,
         "controller": getattr(controller, "name", type(controller).__name__),
-        "x0": x0.tolist(),
+        "x0": s.x0.tolist(),
         "metrics": mdict,
         "model": _model_info(model),
         "noise": perturbation["noise"],
-        "plant": {**perturbation["plant"], **plant_info},
+        "plant": {**perturbation["plant"], **s.plant_info},
         "clf": {"status": clf.status, "r": clf.r, "r_hat": clf.r_hat, "certificate": clf.certificate.to_dict()},
         "versions": versions,
         "lock": lock,
@@ -385,45 +497,55 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
     }
     if result.realtime is not None:   # sim.realtime: how the run kept its schedule (wall-clock numbers)
         metrics["realtime"] = result.realtime.to_dict()
-    phases["closed_loop"] = {"control_s": control_s, "integrate_s": result.integrate_s,
-                             "logging_s": log_seconds[0]}
-    metrics["timing"] = phases
-
-    fell_back = _fallback_warning(m.fallbacks, len(result.records))
+    clock.phases["closed_loop"] = {"control_s": control_s, "integrate_s": result.integrate_s,
+                                   "logging_s": logging_s}
+    metrics["timing"] = clock.phases
+    fell_back = _fallback_warning(result.metrics.fallbacks, len(result.records))
     if fell_back is not None:   # said with the result below, and kept in summary.json
         metrics["warnings"] = [fell_back]
+    return metrics, files
 
+
+def _finish(s: Setup, result, metrics: dict, files: dict, logger, clock: _Clock) -> None:
+    """Stage 8: summary.json written (before the recording is rendered, whatever happens to it), run.rrd rendered,
+    the result lines and warnings echoed."""
     def write_summary() -> None:
-        phase("finish_s")   # the log's last messages, the Rerun recording, the summary
-        metrics["wall_time_s"] = mark[0] - t0   # the phases' sum: the run up to its summary
-        write_json(summary_path, plain(metrics))
-    write_summary()   # the metrics are saved before the recording is rendered, whatever happens to it
-    if logger is not None and log_cfg["rrd"]:
-        warning = _render(logger.path, out_dir / "run.rrd")
+        clock.phase("finish_s")   # the log's last messages, the Rerun recording, the summary
+        metrics["wall_time_s"] = clock.wall_s   # the phases' sum: the run up to its summary
+        write_json(s.summary_path, plain(metrics))
+    write_summary()
+    if logger is not None and s.log_cfg["rrd"]:
+        warning = _render(logger.path, s.out_dir / "run.rrd")
         if warning is None:
             files["rrd"] = "run.rrd"
         else:   # the run and its log are complete; say why there is no recording
-            echo(f"warning: {warning}")
+            s.echo(f"warning: {warning}")
             metrics.setdefault("warnings", []).append(warning)
         write_summary()
+    _echo_result(s, result, files)
+
+
+def _echo_result(s: Setup, result, files: dict) -> None:
+    """The run's result lines: outcome, cost, settling, solve times, warnings (fallbacks, real time), the files."""
     from .sweep_progress import SETTLED, UNSETTLED   # one word per outcome, as a sweep's job lines
+    m, echo, dt = result.metrics, s.echo, s.sim_cfg.dt
     echo(f"result: {SETTLED if m.success else UNSETTLED} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
          f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "
          f"max {m.solve_time_max * 1e3:.2f} ms")
+    fell_back = _fallback_warning(m.fallbacks, len(result.records))
     if fell_back is not None:
         echo(f"warning: {fell_back}")
-    if m.solve_time_median > sim_cfg.dt:   # the controller cannot keep up with the plant in real time
-        echo(f"warning: the median solve time {m.solve_time_median * 1e3:.2f} ms exceeds Δ = {sim_cfg.dt * 1e3:g} ms: "
+    if m.solve_time_median > dt:   # the controller cannot keep up with the plant in real time
+        echo(f"warning: the median solve time {m.solve_time_median * 1e3:.2f} ms exceeds Δ = {dt * 1e3:g} ms: "
              "this controller could not run in real time at this Δ (fewer move blocks, a shorter horizon or a "
              "lower dictionary degree; README: Four states)")
     if result.realtime is not None:
         rt = result.realtime
         echo(f"real time: {rt.misses} deadline miss(es) in {rt.steps} steps of Δ = {rt.dt * 1e3:g} ms; lateness max "
              f"{rt.late_max * 1e3:.2f} ms (step {rt.late_max_k}), p99 {rt.late_p99 * 1e3:.2f} ms (< 0: time to spare)")
-    echo(f"files: {out_dir.resolve()} ({', '.join(files.values())})")
-    return metrics
+    echo(f"files: {s.out_dir.resolve()} ({', '.join(files.values())})")
 
 
 def _model_info(model) -> dict:

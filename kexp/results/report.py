@@ -4,7 +4,7 @@
     kexp-report multirun/2025-01-01/12-00-00            # writes report.csv, report.md, ... into that folder
 
 The rows (one per job; a failed or never-started job keeps its row and its ``reason``) and their groups come from
-:mod:`kexp.app.aggregate`; this module writes them as report.csv, report_summary.csv, report.md and PNG pictures
+:mod:`kexp.results.aggregate`; this module writes them as report.csv, report_summary.csv, report.md and PNG pictures
 (with matplotlib), and is the command line.
 """
 from __future__ import annotations

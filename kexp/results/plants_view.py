@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .aggregate import ReportError
-from .results import is_ocp, oserror, read_csv, split_name, x0_columns
+from .csvfiles import is_ocp, oserror, read_csv, split_name, x0_columns
 
 FEASIBLE = ("True", "False")
 
@@ -52,7 +52,7 @@ class Run:
 
 
 def read_runs(path: str | Path) -> dict[tuple[str, ...], Run]:
-    """{x0 key: Run} of a results CSV (checked by :func:`kexp.app.results.read_csv`); runs without an x0 (failed
+    """{x0 key: Run} of a results CSV (checked by :func:`kexp.results.csvfiles.read_csv`); runs without an x0 (failed
     jobs that never said theirs) cannot be matched and are left out."""
     rows = read_csv(path)
     cols = x0_columns(rows[0])

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .aggregate import ReportError
-from .results import NO_ORACLE, is_ocp, oracle_line, read_csv, split_name, split_stem, x0_columns, x0_key
+from .csvfiles import NO_ORACLE, is_ocp, oracle_line, read_csv, split_name, split_stem, x0_columns, x0_key
 
 KINDS = ("lmpc", "lqr", "nmpc")
 
@@ -47,7 +47,7 @@ def load(paths) -> dict:
     """{(system, controller, inputs, noise, smoothing, mismatch, data noise, estimator, noise per x0): (file name,
     {x0: (success, cost)})} over
     ``paths``;
-    raises :class:`ReportError` when a CSV is not a results CSV (:func:`kexp.app.results.read_csv`), mixes
+    raises :class:`ReportError` when a CSV is not a results CSV (:func:`kexp.results.csvfiles.read_csv`), mixes
     conditions or two CSVs hold the same ones."""
     out: dict = {}
     unique = {Path(p).resolve(): Path(p) for p in sorted(map(Path, paths), reverse=True)}  # a file given twice

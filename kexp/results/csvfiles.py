@@ -1,33 +1,18 @@
-"""The results table: from sweeps over initial conditions to one row per system and configuration, with the cost
-ratio to the oracle (nonlinear MPC with the true model) on the same initial conditions.
-
-    kexp-results collect SWEEP_DIR NAME [-o results/]   # condense a sweep into results/NAME.csv (committed)
-    kexp-results table results/*.csv                     # print the Markdown table (the README's)
-    kexp-results robustness results/*.csv results/robustness/*.csv   # the robustness table (the README's)
-    kexp-results sample CSV N / compare CSV NEW.csv      # re-run a committed row's x0 and compare (reproduce.py)
-    kexp-results plants results/<system>_*.csv           # each configuration against the system's LQR (plants)
-    kexp-results x0 [--seed 42] [-n 100] -- L1,…,Ln H1,…,Hn  # a box's x0 as a Hydra list (reproduce.py)
-
-The condensed CSVs are small and committed, so the table can be regenerated (and is, by a test) without
-re-running the sweeps.  A CSV's name is ``<system>_<config>.csv``; the oracle of a system is its ``*_nmpc.csv``;
-a system without one (a plant with no formula: no oracle can run) gets "n/a (no oracle)" in the ratio columns.
-The initial condition is the columns x0_1 … x0_n, n the number of states (the runs' own x0; 2 for the built-in
-systems, whose column order is unchanged), and a run is known by its full x0.  ``<system>_ocp.csv`` is no row:
-it is the optimal-control feasibility check the plants view reads (kexp.app.plants_view), skipped here.
-:func:`read_csv` checks a CSV as ``collect`` writes it (also for ``kexp-figures roa --oracle``): bad input is a
-:class:`~kexp.app.aggregate.ReportError` of one line naming the file, the line and the column.
+"""The reading layer of the results CSVs: their columns (x0_1 … x0_n, then the run's measures), names
+(``<system>_<config>.csv``), checks (:func:`read_csv`: bad input is a :class:`~kexp.results.aggregate.ReportError`
+of one line naming the file, the line and the column; also for ``kexp-figures roa --oracle``), :func:`collect` (a
+sweep folder condensed into one committed CSV) and the line naming the oracle's solver.  Every other results module
+reads CSVs through this one; it imports only :mod:`kexp.results.aggregate`.
 """
 from __future__ import annotations
 
 import csv
 import math
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from ..cli import Parser, emit
 from .aggregate import ReportError, aggregate
 
 REST = ["status", "success", "cost", "settling_time_s", "solve_median_ms", "solve_p99_ms", "max_abs_u",
@@ -196,25 +181,6 @@ def _states(rows: list[dict], sweep_dir) -> int:
     return lengths[0] if lengths else 2
 
 
-def _load_all(paths, needed) -> dict[str, list[dict]]:
-    """{file stem: rows} of ``paths`` (read_csv); the same file twice counts once, two files of one name refused."""
-    data, where = {}, {}
-    for p in sorted(map(Path, paths)):
-        if is_ocp(p):
-            continue                  # the plants view's feasibility check, no row
-        stem = p.stem
-        if stem in where and where[stem].resolve() != p.resolve():
-            raise ReportError(f"{where[stem]} and {p}: two CSVs named {p.name}; one row per "
-                              "<system>_<configuration>: pass one of them")
-        if stem not in where:
-            where[stem], data[stem] = p, read_csv(p, needed)
-    return data
-
-
-def _f(v: str) -> float:
-    return float(v) if v not in ("", None) else float("nan")
-
-
 NO_ORACLE = "n/a (no oracle)"     # a system without <system>_nmpc.csv: a plant with no formula, no NMPC oracle
 # the oracle's solver by its controller name (runs from before the column had only IPOPT's oracle)
 ORACLE_SOLVERS = {"nmpc_oracle": "CasADi + IPOPT", "nmpc_sqp": "kexp's compiled SQP"}
@@ -239,106 +205,3 @@ def oracle_line(paths: list[str | Path], *, exact: bool = False) -> str:
     return "J_oracle (J*): the true-model NMPC solved by " + "; ".join(
         f"{s} ({', '.join(sorted(v))})" for s, v in sorted(solvers.items())) + "."
 
-
-def table(paths: list[str | Path]) -> str:
-    """The Markdown results table of ``paths`` (one row per CSV; ``<system>_ocp.csv`` skipped): successes, median
-    and worst J, J / J_oracle per x0 against ``<system>_nmpc`` (:data:`NO_ORACLE` without one), settling and
-    solve times, the certificate."""
-    data = _load_all(paths, TABLE_NEEDED)
-    lines = ["| system | configuration | success | median J | worst J | J / J_oracle median | J / J_oracle worst "
-             "| median settling [s] | solve median / p99 [ms] | certificate |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---|"]
-    for name, rows in data.items():
-        system, config = split_stem(name)
-        has_oracle = f"{system}_nmpc" in data
-        oracle_rows = data.get(f"{system}_nmpc", [])
-        ocols = x0_columns(oracle_rows[0]) if oracle_rows else []
-        oracle = {x0_key(r, ocols): _f(r["cost"]) for r in oracle_rows}
-        cols = x0_columns(rows[0])
-        ok = [r for r in rows if r["status"] == "completed"]
-        succ = sum(r["success"] == "True" for r in rows)
-        cost = np.array([_f(r["cost"]) for r in ok])
-        ratios = np.array([_f(r["cost"]) / oracle[x0_key(r, cols)] for r in ok if x0_key(r, cols) in oracle])
-        settle = np.array([_f(r["settling_time_s"]) for r in ok])
-        settle = settle[np.isfinite(settle)]
-        med = np.array([_f(r["solve_median_ms"]) for r in ok])
-        p99 = np.array([_f(r["solve_p99_ms"]) for r in ok])
-        words = {"global": "Prop. 1 holds", "samples": "Prop. 1 fails; V̇(h) < 0 on the grid", "fails": "not a CLF",
-                 "not in x": "not a CLF in x (V does not bound the state)"}
-        certs = sorted({words.get(r["certificate"], r["certificate"]) for r in ok if r["certificate"]})
-        # the true-model rows (nmpc-h300 too); a system without an oracle is a plant: its LQR is on a linearisation
-        if config.split("-")[0] in ("lqr", "nmpc"):
-            certs = ["n/a (true model)" if has_oracle else "n/a (linearisation)"]
-        fmt = lambda a, f=".3f", agg=np.median: "–" if a.size == 0 else format(agg(a), f)  # noqa: E731
-        r_med, r_max = (fmt(ratios), fmt(ratios, agg=np.max)) if has_oracle else (NO_ORACLE, NO_ORACLE)
-        lines.append(
-            f"| {system} | {config} | {succ}/{len(rows)} | {fmt(cost)} | {fmt(cost, agg=np.max)} | "
-            f"{r_med} | {r_max} | {fmt(settle, '.2f')} | "
-            f"{fmt(med, '.2f')} / {fmt(p99, '.2f', np.max)} | {'; '.join(certs) or '–'} |")
-    note = oracle_line(paths, exact=True)
-    return "\n".join(lines + (["", note] if note else []))
-
-
-def main(argv=None) -> None:
-    p = Parser(prog="kexp-results", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="cmd", required=True)
-    c = sub.add_parser("collect", help="condense a sweep into NAME.csv")
-    c.add_argument("sweep")
-    c.add_argument("name", help="<system>_<configuration>, e.g. pendulum_lmpc; the oracle is <system>_nmpc")
-    c.add_argument("-o", "--out", default="results", help="the folder to write NAME.csv into (created)")
-    t = sub.add_parser("table", help="print the Markdown results table")
-    t.add_argument("csv", nargs="+")
-    rb = sub.add_parser("robustness", help="print the Markdown robustness table (kexp.app.robustness)")
-    rb.add_argument("csv", nargs="+")
-    sa = sub.add_parser("sample", help="print N of a CSV's x0 as one Hydra list value (kexp.app.reproduce)")
-    sa.add_argument("csv")
-    sa.add_argument("n", type=int, help="how many x0, evenly spaced over the CSV's rows")
-    co = sub.add_parser("compare", help="compare a re-run's CSV with the committed one, run by run (exit 1 if "
-                                        "any run disagrees)")
-    co.add_argument("committed")
-    co.add_argument("new")
-    co.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance on cost and max |u| (1e-6)")
-    pl = sub.add_parser("plants", help="print the Markdown plants view: each configuration against the system's "
-                                       "LQR, x0 by x0 (kexp.app.plants_view)")
-    pl.add_argument("csv", nargs="+", help="<system>_<configuration>.csv rows (and <system>_ocp.csv, if any)")
-    x0 = sub.add_parser("x0", help="print N x0 drawn from a box of n states as one Hydra list value "
-                                   "(kexp.app.reproduce.generated_x0)")
-    x0.add_argument("low", help="the box's low corner, one number per state, comma-separated: -0.5,-0.2,0,0")
-    x0.add_argument("high", help="its high corner; a state whose low equals its high is fixed (zero velocities)")
-    x0.add_argument("--seed", type=int, default=42, help="numpy default_rng seed (42)")
-    x0.add_argument("-n", type=int, default=100, help="how many x0 (100)")
-    args = p.parse_args(argv)
-    try:
-        if args.cmd in ("sample", "compare"):
-            from . import reproduce
-            if args.cmd == "sample":
-                emit(reproduce.hydra_list(reproduce.sample(args.csv, args.n)))
-            else:
-                comparison = reproduce.compare(args.committed, args.new, args.rtol)
-                emit(comparison.report())
-                sys.exit(0 if comparison.agrees else 1)
-        elif args.cmd == "plants":
-            from .plants_view import table as plants_table
-            emit(plants_table(args.csv))
-        elif args.cmd == "x0":
-            from . import reproduce
-            emit(reproduce.hydra_list(reproduce.generated_x0(args.seed, reproduce.corner("low", args.low),
-                                                             reproduce.corner("high", args.high), args.n)))
-        elif args.cmd == "collect":
-            print(f"wrote {collect(args.sweep, args.name, args.out)}")
-        elif args.cmd == "robustness":
-            from .robustness import table as robustness_table
-            emit(robustness_table(args.csv))
-        else:
-            emit(table(args.csv))
-    except ReportError as exc:
-        print(f"kexp-results: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    except OSError as exc:
-        print(f"kexp-results: error: {oserror(exc)}", file=sys.stderr)
-        sys.exit(2)
-    sys.exit(0)
-
-
-if __name__ == "__main__":
-    main()

@@ -1,5 +1,5 @@
-"""Reading a Hydra sweep of ``kexp`` runs into rows and groups, for ``kexp-report`` (:mod:`kexp.app.report`),
-``kexp-results`` (:mod:`kexp.app.results`) and ``kexp-figures roa`` (:mod:`kexp.analysis.roa`).
+"""Reading a Hydra sweep of ``kexp`` runs into rows and groups, for ``kexp-report`` (:mod:`kexp.results.report`),
+``kexp-results`` (:mod:`kexp.results.cli`) and ``kexp-figures roa`` (:mod:`kexp.analysis.roa`).
 
 :func:`aggregate` finds every job folder under the sweep folder (a folder with a ``summary.json`` or a
 ``.hydra/overrides.yaml``), reads its ``summary.json`` and the job's overrides, and returns one row per job.

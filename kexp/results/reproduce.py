@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import is_number
 from .aggregate import ReportError
-from .results import read_csv, x0_columns, x0_key
+from .csvfiles import read_csv, x0_columns, x0_key
 
 GENERATORS = ((42, -1.0, 1.0, 100), (42, -2.0, 2.0, 100), (43, -2.0, 2.0, 300),
               (42, (-0.6, -1.5), (0.6, 1.5), 100), (42, (-0.5, -0.6, 0.0, 0.0), (0.5, 0.6, 0.0, 0.0), 100))
