@@ -74,8 +74,8 @@ def rollout(x0, U, bos, h, substeps, X):
 
 
 @njit(cache=True, nogil=True)
-def _stage(x, S, u, a, k, dk, J, xt, St, n, w):
-    """k, dk <- f and its derivative at x + a*k_prev (xt, St hold that point and its sensitivity)."""
+def _stage(u, k, dk, J, xt, St, n, w):
+    """k, dk <- f and its derivative [df/dx St | df/dx St_u + df/du] at the stage point xt (St its sensitivity)."""
     rhs_jac(xt, u, k, J)
     for i in range(n):
         for c in range(w):
@@ -103,22 +103,22 @@ def rollout_jac(x0, U, bos, h, substeps, X, AB):
         for s in range(substeps):
             xt[:] = x
             St[:, :] = S
-            _stage(x, S, u, 0.0, k1, d1, J, xt, St, n, w)
+            _stage(u, k1, d1, J, xt, St, n, w)
             for i in range(n):
                 xt[i] = x[i] + 0.5 * h * k1[i]
                 for c in range(w):
                     St[i, c] = S[i, c] + 0.5 * h * d1[i, c]
-            _stage(x, S, u, 0.5, k2, d2, J, xt, St, n, w)
+            _stage(u, k2, d2, J, xt, St, n, w)
             for i in range(n):
                 xt[i] = x[i] + 0.5 * h * k2[i]
                 for c in range(w):
                     St[i, c] = S[i, c] + 0.5 * h * d2[i, c]
-            _stage(x, S, u, 0.5, k3, d3, J, xt, St, n, w)
+            _stage(u, k3, d3, J, xt, St, n, w)
             for i in range(n):
                 xt[i] = x[i] + h * k3[i]
                 for c in range(w):
                     St[i, c] = S[i, c] + h * d3[i, c]
-            _stage(x, S, u, 1.0, k4, d4, J, xt, St, n, w)
+            _stage(u, k4, d4, J, xt, St, n, w)
             for i in range(n):
                 x[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
                 for c in range(w):

@@ -206,6 +206,15 @@ class TrueModelOracle:
         self._cold = False
         return self._warm_blocks()
 
+    def _start(self, x0, z0):
+        """The start of a step: (t0, x0 as floats, the region, the fallback step if x0 is not finite else None)."""
+        t0 = time.perf_counter()
+        x0 = np.asarray(x0, float)
+        region = self._region(z0)
+        bad = None if np.all(np.isfinite(x0)) else self._fallback(x0, z0, "non-finite state x", region, t0,
+                                                                  "not_run", 0)
+        return t0, x0, region, bad
+
     def _region(self, z0) -> str:
         if self.clf is not None and z0 is not None and np.size(z0) > 0:
             return region_of(float(self.clf.lyap.value(np.asarray(z0, float))), self.clf.r, self.clf.r_hat)
@@ -302,11 +311,9 @@ class NmpcOracle(TrueModelOracle):
         return X
 
     def step(self, x0: np.ndarray, z0: np.ndarray | None = None) -> ControlStep:
-        t0 = time.perf_counter()
-        x0 = np.asarray(x0, float)
-        region = self._region(z0)
-        if not np.all(np.isfinite(x0)):
-            return self._fallback(x0, z0, "non-finite state x", region, t0, "not_run", 0)
+        t0, x0, region, bad = self._start(x0, z0)
+        if bad is not None:
+            return bad
         Ubar = self._first_guess(x0)
         Xbar = self.simulate(x0, Ubar)
         if not np.all(np.isfinite(Xbar)):

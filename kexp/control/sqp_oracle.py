@@ -154,11 +154,9 @@ class SqpOracle(TrueModelOracle):
         return "max_iter", f, max_iter, qp_iters
 
     def step(self, x0: np.ndarray, z0: np.ndarray | None = None) -> ControlStep:
-        t0 = time.perf_counter()
-        x0 = np.asarray(x0, float)
-        region = self._region(z0)
-        if not np.all(np.isfinite(x0)):
-            return self._fallback(x0, z0, "non-finite state x", region, t0, "not_run", 0)
+        t0, x0, region, bad = self._start(x0, z0)
+        if bad is not None:
+            return bad
         U = np.ascontiguousarray(self._first_guess(x0))
         status, f, iters, qp_iters = self._solve(x0, U, self.max_iter)
         if status not in ("solved", "max_iter", "stalled"):
