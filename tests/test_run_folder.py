@@ -138,6 +138,18 @@ def test_two_sweeps_into_one_sweep_folder_leave_the_first_sweeps_jobs(cache, tmp
     assert "sim.x0=[0.5,0.5]" in (sweep / "0" / ".hydra" / "overrides.yaml").read_text()
 
 
+def test_a_run_with_a_recording_says_how_to_view_it_headless(tmp_path, cache):
+    """The last line names the recording and the web viewer for a machine without a display (issue 36)."""
+    out = tmp_path / "run"
+    proc = kexp(*[a for a in SMALL if a != "logging.rrd=false"], f"cache.dir={cache}", f"hydra.run.dir={out}")
+    assert proc.returncode == 0, proc.stderr
+    last = proc.stdout.splitlines()[-1]
+    assert last.startswith(f"view: rerun {out.resolve() / 'run.rrd'}   (no display: rerun --web-viewer")
+    assert (out / "run.rrd").is_file() and files_line(proc.stdout) == out.resolve()
+    quiet = kexp(*SMALL, f"cache.dir={cache}", f"hydra.run.dir={tmp_path / 'norrd'}")
+    assert quiet.returncode == 0 and "view: " not in quiet.stdout      # no recording: nothing to view
+
+
 # -- the pieces ---------------------------------------------------------------------------------------------------
 def test_holds_run_and_completed(tmp_path):
     assert not holds_run(tmp_path / "missing") and not holds_run(tmp_path) and not completed(tmp_path)

@@ -540,12 +540,15 @@ def _echo_result(s: Setup, result, files: dict) -> None:
     if m.solve_time_median > dt:   # the controller cannot keep up with the plant in real time
         echo(f"warning: the median solve time {m.solve_time_median * 1e3:.2f} ms exceeds Δ = {dt * 1e3:g} ms: "
              "this controller could not run in real time at this Δ (fewer move blocks, a shorter horizon or a "
-             "lower dictionary degree; README: Four states)")
+             "lower dictionary degree; docs/guides/own-system.md: Four states)")
     if result.realtime is not None:
         rt = result.realtime
         echo(f"real time: {rt.misses} deadline miss(es) in {rt.steps} steps of Δ = {rt.dt * 1e3:g} ms; lateness max "
              f"{rt.late_max * 1e3:.2f} ms (step {rt.late_max_k}), p99 {rt.late_p99 * 1e3:.2f} ms (< 0: time to spare)")
     echo(f"files: {s.out_dir.resolve()} ({', '.join(files.values())})")
+    if "rrd" in files:   # a headless machine has no display for the native viewer: say how to view it anyway
+        echo(f"view: rerun {s.out_dir.resolve() / files['rrd']}   (no display: rerun --web-viewer …, then "
+             "http://localhost:9090; docs/guides/rerun.md)")
 
 
 def _model_info(model) -> dict:
