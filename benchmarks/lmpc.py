@@ -130,9 +130,9 @@ def oracle_check(model, clf, law, ics):
 
 # ---------------------------------------------------------------------------------------------------- baseline
 BASELINE_FILES = ("blocking.py", "expm_kernels.py", "kernels.py", "ipm.py", "qp.py", "zoh_poly.py", "condense.py",
-                  "memory.py", "lmpc.py")
+                  "memory.py", "checks.py", "lmpc.py")
 # not yet written at older revisions (a file that is missing where it was needed fails at the import)
-OPTIONAL_BASELINE_FILES = ("expm_kernels.py", "ipm.py", "zoh_poly.py", "condense.py", "memory.py")
+OPTIONAL_BASELINE_FILES = ("expm_kernels.py", "ipm.py", "zoh_poly.py", "condense.py", "memory.py", "checks.py")
 
 
 def load_baseline(rev: str):

@@ -40,9 +40,11 @@ def pytest_addoption(parser):
 
 
 def _as_log(source) -> Path:
-    path = Path(source)
-    if path.is_dir():
-        path = path / "run.mcap"
+    from .recording.reader import LogError, log_path   # light: the standard library's modules only
+    try:
+        path = log_path(source)
+    except LogError as exc:
+        raise FileNotFoundError(f"kexp_golden: {exc}") from None
     if not path.is_file():
         raise FileNotFoundError(f"kexp_golden: no run log at {path} (pass a run folder holding run.mcap, or an "
                                 f".mcap file)")

@@ -8,7 +8,8 @@
 #                                           # the grammar below runs)
 #   results/robustness.sh --overrides ROW   # the row's kexp overrides, one per line (results/reproduce.sh)
 #
-# Row names: <system>_<controller>[-reg][-noise1|-noise3][-dnN][-mnN][-raw|-sgN][-iv][-mu0.8|...|-c0.012]; -dnN: N % noise
+# Row names: <system>_<controller>[-hN][-reg][-noise1|-noise3][-dnN][-mnN][-raw|-sgN][-iv][-mu0.8|...|-c0.012]; -hN: the
+# oracle's horizon in steps (controller nmpc only; rows <system>_nmpc-hN go to results/horizon/); -dnN: N % noise
 # on the data only, unsmoothed; -mnN: N % measurement noise in the closed loop only, each x0 its own draw
 # (sim.noise.per_x0); -iv: the instrumental-variables estimator (identification.estimator=iv); -reg: B, b regressed
 # from excited data (G unknown); -noiseN: N % Gaussian noise (of the data's RMS) on the data and the closed loop's
@@ -25,11 +26,13 @@ overrides() {  # ROW -> the kexp overrides of that row
     local row=$1 system=${1%_*} rest=${1##*_}
     local ctrl=${rest%%-*} out=("+experiment=$system")
     [[ $rest == paper-lmpc* ]] && ctrl=paper-lmpc      # the paper's recipe, +experiment=paper_<system>
+    local hz=""
+    [[ $rest =~ -h([0-9]+)(-|$) ]] && hz=${BASH_REMATCH[1]}   # -hN: the oracle's horizon, N steps
     case $ctrl in
         lmpc) ;;
         paper-lmpc) out=("+experiment=paper_$system") ;;
         lqr) out+=(controller=lqr) ;;
-        nmpc) out+=(controller=nmpc "controller.horizon=$(oracle_horizon "$system")") ;;
+        nmpc) out+=(controller=nmpc "controller.horizon=${hz:-$(oracle_horizon "$system")}") ;;
         *) echo "unknown controller in row $row" >&2; return 2 ;;
     esac
     local tok smooth=0 raw=0 win=7
@@ -43,6 +46,7 @@ overrides() {  # ROW -> the kexp overrides of that row
             dn1|dn3|dn5) out+=("data.noise.std=0.0${tok#dn}"); raw=1 ;;   # the data's noise only, unsmoothed
             mn1|mn3) out+=("sim.noise.std=0.0${tok#mn}" sim.noise.per_x0=true) ;;   # the loop's only, a draw per x0
             iv) out+=(identification.estimator=iv) ;;
+            h[0-9]*) [ "$ctrl" = nmpc ] || { echo "token $tok (the oracle's horizon) needs controller nmpc in row $row" >&2; return 2; } ;;
             raw) raw=1 ;;
             sg[0-9]*) win=${tok#sg} ;;
             mu0.8|mu1.2) out+=("+sim.plant_params.mu=${tok#mu}") ;;
@@ -88,5 +92,6 @@ for row in "$@"; do
     [ ${#ov[@]} -gt 0 ] || exit 2     # overrides said why on stderr
     dest=results/robustness
     [[ $row =~ ^[a-z_]+_(paper-lmpc|lmpc|lqr|nmpc)$ ]] && dest=results
+    [[ $row =~ ^[a-z_]+_nmpc-h[0-9]+$ ]] && dest=results/horizon     # the long-horizon oracle: results/horizon.md
     sweep_row "$row" "sweeps/$row" "$dest" "$X0" "${ov[@]}"
 done

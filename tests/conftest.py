@@ -6,6 +6,10 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import tempfile  # noqa: E402
 
+# the compiled kernels stay in the user's per-install cache (kexp.control.jit_cache: ~/.cache/kexp/numba/<tag>, or
+# NUMBA_CACHE_DIR): importing kexp.control exports it as NUMBA_CACHE_DIR before the model cache moves, so that a
+# session does not compile them all again
+import kexp.control  # noqa: E402,F401
 # the model cache of the app goes to a fresh folder per test session, never the user's ~/.cache/kexp
 os.environ["KEXP_CACHE_DIR"] = tempfile.mkdtemp(prefix="kexp-cache-")
 

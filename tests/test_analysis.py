@@ -176,7 +176,7 @@ def test_roa_of_a_3_state_sweep_draws_labelled_projections(sweep3, tmp_path, cap
     assert exc.value.code == 0
     out = capsys.readouterr().out
     assert f"linear: n = 3, success {successes}/3 (1 without a usable x0, not drawn)" in out
-    assert "failed: 2 sim.x0=[0.1,0.2]: error: sim.x0=[0.1, 0.2]: give 3 finite numbers" in out
+    assert "error: 2 sim.x0=[0.1,0.2]: error: sim.x0=[0.1, 0.2]: give 3 finite numbers" in out
 
 
 def test_paper_figure_of_a_3_state_run_labels_its_projection(sweep3, tmp_path, monkeypatch):

@@ -14,7 +14,7 @@ from cli import console_script
 from kexp.app.conf import CONF_DIR
 from kexp.app.data_only import STATUS, STOP_LINE
 from kexp.app.experiment import run
-from kexp.app.main import job_line
+from kexp.app.sweep_progress import outcome_text, verdict
 from kexp.data import Box, DataConfig, collect
 from kexp.data.excitation import Excitation
 from kexp.data.files import write_runs
@@ -68,6 +68,10 @@ def test_the_command_identifies_certifies_and_stops_without_a_plant(runs, tmp_pa
     fitted = kexp.fit(runs, degree=3)
     assert all(np.array_equal(getattr(model, a), getattr(fitted.model, a)) for a in _ARRAYS)
     assert summary["model"]["prediction_error"] == pytest.approx(fitted.report["prediction_error"], rel=1e-12)
+    # kexp-report counts it as completed (what it set out to do), with no success (no closed loop)
+    from kexp.app.aggregate import aggregate
+    (row,) = aggregate(out)
+    assert row["ok"] is True and row["status"] == STATUS and row["success"] is None and row["reason"] == ""
 
 
 @pytest.mark.parametrize("extra,fragment", [
@@ -124,8 +128,9 @@ def test_a_plant_with_other_dimensions_is_refused(tmp_path):
 
 
 def test_a_sweep_job_line_of_an_identify_only_run():
-    line = job_line(3, {"status": STATUS, "model": {"k": 9}, "clf": {"status": "optimal"}}, Path("/x/3"))
-    assert line == "#3 IDENTIFIED (no plant: no closed loop): k = 9, CLF optimal; /x/3"
+    summary = {"status": STATUS, "completed": True, "model": {"k": 9}, "clf": {"status": "optimal"}}
+    assert verdict(summary) == "identified"
+    assert outcome_text(summary) == "k = 9, CLF optimal (no plant: no closed loop)"
 
 
 def test_the_data_system_has_no_formula():

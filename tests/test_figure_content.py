@@ -142,9 +142,9 @@ JOBS = [([0.5, 0.5], False, 0.058), ([-0.5, 0.5], False, 1.99), ([1.5, 1.5], Fal
 def test_roa_title_has_the_rule_and_not_settled_runs_are_told_apart(tmp_path, figures, config):
     _, facts = roa_figure(_sweep(tmp_path / "sweep", JOBS, config), tmp_path / "roa.png")
     (ax,) = [a for a in figures[0].axes if a.get_visible()]
-    assert "success: ‖x(T) − x_eq‖ < 0.01 at T = 5 s" in ax.get_title()
-    assert _legend(ax) == ["success (1)", f"{NOT_SETTLED} (1)", "failed (2)", OMEGA_R, OMEGA_RH]
-    assert NOT_SETTLED == "not settled by T (‖x(T)‖ < 10·tol)"
+    assert "settled: ‖x(T) − x_eq‖ < 0.01 at T = 5 s" in ax.get_title()
+    assert _legend(ax) == ["settled (1)", f"{NOT_SETTLED} (1)", "unsettled (2)", OMEGA_R, OMEGA_RH]
+    assert NOT_SETTLED == "unsettled, near (‖x(T)‖ < 10·tol)"
     (g,) = facts["groups"]
     assert (g["T"], g["tol"], g["not_settled"], g["successes"]) == (5.0, 0.01, 1, 1)
 
@@ -155,24 +155,24 @@ def test_roa_of_a_sweep_without_logs_names_a_built_in_system_s_states(tmp_path, 
     roa_figure(_sweep(tmp_path / "sweep", JOBS, "hydra", log=False, system="pendulum"), tmp_path / "roa.png")
     (ax,) = [a for a in figures[0].axes if a.get_visible()]
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("theta(0)", "omega(0)")
-    assert _legend(ax) == ["success (1)", f"{NOT_SETTLED} (1)", "failed (2)"]
+    assert _legend(ax) == ["settled (1)", f"{NOT_SETTLED} (1)", "unsettled (2)"]
 
 
 
 def test_not_settled_is_within_ten_times_tol():
-    """A completed run that missed tol is drawn as 'not settled by T' only while ‖x(T)‖ < 10·tol, failed from
-    there; without tol it is failed; a run that did not complete is diverged or a failed job."""
+    """A completed run that missed tol is drawn as 'unsettled, near' only while ‖x(T)‖ < 10·tol, unsettled from
+    there; without tol it is unsettled; a run that did not complete is diverged or an error."""
     from kexp.analysis.roa import run_kind
     done = lambda err: {"ok": True, "success": False, "final_error": err, "status": "completed"}  # noqa: E731
-    assert run_kind(done(0.0999), 0.01) == NOT_SETTLED and run_kind(done(0.1001), 0.01) == "failed"
-    assert run_kind(done(0.05), None) == "failed" and run_kind({**done(0.0), "success": True}, 0.01) == "success"
+    assert run_kind(done(0.0999), 0.01) == NOT_SETTLED and run_kind(done(0.1001), 0.01) == "unsettled"
+    assert run_kind(done(0.05), None) == "unsettled" and run_kind({**done(0.0), "success": True}, 0.01) == "settled"
     assert run_kind({"ok": False, "success": False, "status": "diverged"}, 0.01) == "diverged"
-    assert run_kind({"ok": False, "success": False, "status": "error"}, 0.01) == "failed job"
+    assert run_kind({"ok": False, "success": False, "status": "error"}, 0.01) == "error"
 
 
 def test_roa_without_t_and_tol_says_so_and_does_not_guess(tmp_path, figures):
     _, facts = roa_figure(_sweep(tmp_path / "sweep", JOBS, None), tmp_path / "roa.png")
     (ax,) = [a for a in figures[0].axes if a.get_visible()]
-    assert ax.get_title().endswith("success: ‖x(T) − x_eq‖ < tol at T")
-    assert _legend(ax) == ["success (1)", "failed (3)"]
+    assert ax.get_title().endswith("settled: ‖x(T) − x_eq‖ < tol at T")
+    assert _legend(ax) == ["settled (1)", "unsettled (3)"]
     assert facts["groups"][0]["not_settled"] == 0

@@ -18,9 +18,9 @@ from kexp.identify import IdentifyConfig, identify
 from kexp.identify.model import _ARRAYS
 from kexp.systems import make_system
 
-# the README's example ("From arrays or a folder to a model: kexp.fit"): arrays → model → prediction, 7 lines
-README = Path(__file__).resolve().parents[1] / "README.md"
-_SECTION = README.read_text(encoding="utf-8").split("### From arrays or a folder to a model: `kexp.fit`", 1)[1]
+# the docs' example (docs/guides/data-from-files.md, "From arrays or a folder to a model: kexp.fit"): arrays → model → prediction, 7 lines
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "guides" / "data-from-files.md"
+_SECTION = PAGE.read_text(encoding="utf-8").split("\n## From arrays or a folder to a model: `kexp.fit`", 1)[1]
 EXAMPLE = re.findall(r"```python\n(.*?)```", _SECTION, flags=re.S)[0]
 
 MU, LAM, DT = -0.7, 0.4, 0.01
@@ -49,7 +49,7 @@ def forced():
 def test_the_readme_example_is_seven_lines_and_runs(capsys):
     assert len(EXAMPLE.strip().splitlines()) <= 7
     ns: dict = {}
-    exec(compile(EXAMPLE, "README (kexp.fit)", "exec"), ns)
+    exec(compile(EXAMPLE, "docs/guides/data-from-files.md (kexp.fit)", "exec"), ns)
     model, X = ns["model"], ns["X"]
     for lam in (MU, LAM, 2 * MU):   # solve_ivp at rtol 1e-12: the invariant subspace's eigenvalues to ~1e-9
         assert np.min(np.abs(model.eigenvalues - lam)) < 1e-7

@@ -1,4 +1,4 @@
-"""A user's own system and presets outside the repository (issue 11, item 5): README's example as written, a config
+"""A user's own system and presets outside the repository (issue 11, item 5): the docs' example (docs/guides/own-system.md) as written, a config
 folder of one's own on Hydra's search path, and a changed system.name starting from clean parameters."""
 import os
 import re
@@ -15,7 +15,7 @@ from kexp.recording import read_log
 
 from cli import console_script
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "guides" / "own-system.md"
 # small enough to take seconds (as in tests/test_recording.py)
 SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "controller.lmpc.horizon=20",
          "controller.lmpc.blocks=null", "sim.T=1.0", "clf.grid=11", "logging.rrd=false", "logging.progress=false",
@@ -23,12 +23,12 @@ SMALL = ["data.sampler.n_traj=20", "data.T=3.0", "dictionary.degree=3", "control
 
 
 def _readme_section() -> str:
-    text = README.read_text()
-    return text[text.index("### Your own system"):text.index("### Model cache")]
+    text = PAGE.read_text()
+    return text[:text.index("\n## Four states and more")]
 
 
 def _readme_module() -> str:
-    """The README's my_systems.py, as written."""
+    """The docs' my_systems.py, as written."""
     blocks = re.findall(r"```python\n(.*?)```", _readme_section(), re.S)
     return next(b for b in blocks if b.startswith("# my_systems.py"))
 
@@ -104,7 +104,7 @@ def _user_folder(tmp_path: Path) -> Path:
 
 
 def test_the_readme_config_folder_of_ones_own_runs_as_written(tmp_path):
-    """README's myconf/system/duffing2.yaml and myconf/experiment/mine.yaml, and its --config-dir command."""
+    """The docs' myconf/system/duffing2.yaml and myconf/experiment/mine.yaml, and its --config-dir command."""
     (tmp_path / "my_systems.py").write_text(_readme_module())
     for block in re.findall(r"```yaml\n(.*?)```", _readme_section(), re.S):
         path = tmp_path / re.search(r"^# (myconf/\S+\.yaml)", block, re.M).group(1)

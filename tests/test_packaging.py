@@ -135,6 +135,8 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     bindir = venv / "bin"
     env = _no_pythonpath_env()
+    env.pop("NUMBA_CACHE_DIR", None)
+    env["KEXP_CACHE_DIR"] = str(tmp_path / "kexp_cache")   # a fresh per-user cache: the compiled kernels go there
     # the wheel first, while the venv sees only itself (pip would otherwise find this environment's kexp), offline
     subprocess.run([str(bindir / "python"), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)],
                    check=True, capture_output=True, env=env)
@@ -168,3 +170,17 @@ def test_wheel_installs_into_a_fresh_venv_and_runs_kexp_from_an_empty_folder(tmp
     assert summary["lock"]["sha256"] is None and summary["lock"]["matches"] is None
     assert "no requirements.lock" in summary["lock"]["note"]
     assert summary["versions"]["kexp"] == kexp.__version__
+
+    # the kernels compiled once, announced in one line, into the per-user cache (not beside the installed sources);
+    # a second process in the same install loads them: no line, not one file added or rewritten
+    numba_dir = tmp_path / "kexp_cache" / "numba"
+    compiled = {p.relative_to(numba_dir).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
+                for p in numba_dir.rglob("*") if p.is_file()}
+    assert sum(n.endswith(".nbi") for n in compiled) >= 10 and sum(n.endswith(".nbc") for n in compiled) >= 10
+    assert proc.stderr.count("kexp: compiling the controller's kernels once for this install") == 1
+    assert not list(Path(purelib, "kexp").rglob("*.nbi"))
+    again = subprocess.run([str(bindir / "kexp"), *SMALL], capture_output=True, text=True, env=env, cwd=work)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "compiling" not in again.stderr
+    assert {p.relative_to(numba_dir).as_posix(): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in numba_dir.rglob("*") if p.is_file()} == compiled

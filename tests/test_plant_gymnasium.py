@@ -285,9 +285,10 @@ def test_gymnasium_not_installed_is_one_line(monkeypatch):
     assert str(exc.value) == EXTRA
 
 
-def test_mujoco_not_installed_is_one_line(monkeypatch):
-    """mujoco missing: gymnasium's MuJoCo modules fail to import (re-imported here with mujoco hidden)."""
-    monkeypatch.setitem(sys.modules, "mujoco", None)
+def _mujoco_env_without(monkeypatch, module: str) -> str:
+    """The PlantError line of building InvertedPendulum-v5 with ``module`` hidden (gymnasium's MuJoCo modules are
+    re-imported without it)."""
+    monkeypatch.setitem(sys.modules, module, None)
     for name in [n for n in sys.modules if n.startswith("gymnasium.envs.mujoco")]:
         monkeypatch.delitem(sys.modules, name)
     try:
@@ -295,24 +296,21 @@ def test_mujoco_not_installed_is_one_line(monkeypatch):
             _plant("InvertedPendulum-v5")
     finally:
         for name in [n for n in sys.modules if n.startswith("gymnasium.envs.mujoco")]:
-            del sys.modules[name]   # anything half-imported without mujoco; monkeypatch restores the originals
-    assert str(exc.value) == f"{EXTRA} (InvertedPendulum-v5 needs mujoco)"
+            del sys.modules[name]   # anything half-imported without it; monkeypatch restores the originals
+    return str(exc.value)
+
+
+def test_mujoco_not_installed_is_one_line(monkeypatch):
+    """mujoco missing: gymnasium's MuJoCo modules fail to import (re-imported here with mujoco hidden)."""
+    assert _mujoco_env_without(monkeypatch, "mujoco") == f"{EXTRA} (InvertedPendulum-v5 needs mujoco)"
 
 
 def test_a_module_the_env_imports_when_built_is_one_line(monkeypatch):
     """imageio missing (gymnasium's MuJoCo renderer imports it as an environment is built; gymnasium[mujoco]
     brings it, and the plants extra asks for that): one line naming the extra and the module, not a hint about
     keyword arguments (what a fresh venv without imageio printed)."""
-    monkeypatch.setitem(sys.modules, "imageio", None)
-    for name in [n for n in sys.modules if n.startswith("gymnasium.envs.mujoco")]:
-        monkeypatch.delitem(sys.modules, name)
-    try:
-        with pytest.raises(PlantError) as exc:
-            _plant("InvertedPendulum-v5")
-    finally:
-        for name in [n for n in sys.modules if n.startswith("gymnasium.envs.mujoco")]:
-            del sys.modules[name]
-    assert str(exc.value) == f"{EXTRA} (InvertedPendulum-v5 needs the module 'imageio', which is not installed)"
+    assert _mujoco_env_without(monkeypatch, "imageio") == \
+        f"{EXTRA} (InvertedPendulum-v5 needs the module 'imageio', which is not installed)"
 
 
 def test_failures_while_running_are_one_line():

@@ -305,12 +305,15 @@ def test_a_run_on_a_plant_without_a_formula_uses_the_plant_lqr(tmp_path):
 
 def test_an_unset_linearisation_leaves_the_config_hash_as_it_was():
     """controller.linearisation null (auto) is not in the hashed config: every existing run keeps its hash
-    (the default config's hash on main before the key existed: 579faad454c50974)."""
+    (the default config's hash on main before the key existed: 579faad454c50974; the default QP solver has been
+    DAQP since issue 35, so that config is today's with controller.lmpc.qp_solver=ipm, and issue 34's keys at their
+    defaults leave it as it was too)."""
     from kexp.app.experiment import config_dict, config_hash
     from test_app import _compose
-    default = config_dict(_compose([]))
+    default = config_dict(_compose(["controller.lmpc.qp_solver=ipm"]))
     assert "linearisation" not in default["controller"]
     assert config_hash(default) == "579faad454c50974"
+    assert config_hash(config_dict(_compose([]))) != "579faad454c50974"   # qp_solver: daqp is another config
     assert config_dict(_compose(["controller=lqr", "controller.linearisation=plant"]))["controller"][
         "linearisation"] == "plant"
 

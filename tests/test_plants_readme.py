@@ -1,4 +1,4 @@
-"""The README's walk-through "Your own plant class, walked through", run as written: its Python block writes the
+"""The docs' walk-through (docs/guides/plants.md) "Your own plant class, walked through", run as written: its Python block writes the
 rig, its first command closes the loop on the rig with the model from Van der Pol's formula (the built-in run's
 J = 3.9821), its second knows nothing but the rig (data from it, B regressed) and stabilises it."""
 import json
@@ -10,11 +10,11 @@ from pathlib import Path
 
 from cli import console_script
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "guides" / "plants.md"
 
 
 def _section() -> str:
-    text = README.read_text()
+    text = PAGE.read_text()
     start = text.index("### Your own plant class, walked through")
     return text[start:text.index("\n### ", start + 10)]
 

@@ -74,7 +74,8 @@ def test_the_presets_run_as_the_readme_says(tmp_path, preset, x0, cost):
 
 
 def test_a_run_mostly_on_its_fallback_says_so(tmp_path):
-    """An LMPC whose QP cannot finish (one interior-point iteration) falls back to h at every step: the run ends as
+    """An LMPC whose QP cannot finish (one interior-point iteration; DAQP, the default, warm-started from the last
+    active set, finishes in one) falls back to h at every step: the run ends as
     h's run and says so in one warning line, also kept in summary.json (before plants, degree-5 models of
     Pendulum-v1 did this silently: only 'fallbacks 200' in the result line)."""
     from hydra import compose, initialize_config_dir
@@ -83,6 +84,7 @@ def test_a_run_mostly_on_its_fallback_says_so(tmp_path):
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         cfg = compose(config_name="config", overrides=["+experiment=gym_pendulum", "logging.mcap=false",
                                                         "logging.rrd=false", "controller.lmpc.qp_max_iter=1",
+                                                            "controller.lmpc.qp_solver=ipm",   # DAQP finishes warm
                                                         f"cache.dir={tmp_path / 'cache'}"])
     lines = []
     summary = run(cfg, tmp_path / "run", echo=lines.append)

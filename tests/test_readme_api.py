@@ -1,5 +1,5 @@
-"""The README's "Python API" section runs as written: its python blocks are executed in order in one namespace,
-with only the sizes made small (each substitution must hit the README text exactly as often as stated, so an edit
+"""The docs' Python API page (docs/guides/python-api.md) runs as written: its python blocks are executed in order in one namespace,
+with only the sizes made small (each substitution must hit the page's text exactly as often as stated, so an edit
 of the snippet that the test no longer matches fails here instead of going untested)."""
 import re
 from pathlib import Path
@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
-# README text -> small setting, and how many times the text occurs in the section
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "guides" / "python-api.md"
+# the page's text -> small setting, and how many times the text occurs in the section
 SMALL = [("Circle(100, 2.5)", "Circle(20, 2.5)", 1),
          ("DataConfig(T=10.0, dt=0.01)", "DataConfig(T=3.0, dt=0.01)", 1),
          ("Monomials(2, 5)", "Monomials(2, 3)", 1),
@@ -19,9 +19,7 @@ SMALL = [("Circle(100, 2.5)", "Circle(20, 2.5)", 1),
 
 
 def python_api_blocks() -> list[str]:
-    text = README.read_text()
-    section = text.split("\n## Python API\n", 1)[1].split("\n## ", 1)[0]
-    return re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    return re.findall(r"```python\n(.*?)```", PAGE.read_text(), flags=re.S)
 
 
 def test_the_python_api_section_runs_as_written(tmp_path, monkeypatch, capsys):
@@ -30,11 +28,11 @@ def test_the_python_api_section_runs_as_written(tmp_path, monkeypatch, capsys):
     assert len(blocks) == 2 and "RunLogger(path)" in blocks[1]
     code = "\n".join(blocks)
     for old, new, count in SMALL:
-        assert code.count(old) == count, f"README Python API: {old!r} occurs {code.count(old)} times, not {count}"
+        assert code.count(old) == count, f"docs/guides/python-api.md: {old!r} occurs {code.count(old)} times, not {count}"
         code = code.replace(old, new)
     monkeypatch.chdir(tmp_path)
     ns: dict = {}
-    exec(compile(code, "README.md (Python API)", "exec"), ns)
+    exec(compile(code, "docs/guides/python-api.md", "exec"), ns)
     out = capsys.readouterr().out
     assert "logs are equal" in out and "100 control steps logged" in out
     from kexp.recording import read_log

@@ -74,9 +74,9 @@ def test_bad_input_is_one_line(grid, tmp_path, capsys):
     assert exc.value.code == 2 and not (tmp_path / "y.png").exists()
 
 
-def test_committed_regions_table_is_the_readmes():
-    """results/regions.md is `kexp-results table results/regions/*.csv` of the committed CSVs, and the README shows
-    it (the far-region and tight-bound rows of issue 13 are never typed by hand)."""
+def test_committed_regions_table_is_the_docs():
+    """results/regions.md is `kexp-results table results/regions/*.csv` of the committed CSVs, and docs/results.md
+    includes it (the far-region and tight-bound rows of issue 13 are never typed by hand)."""
     from pathlib import Path
 
     from kexp.app.results import table
@@ -86,12 +86,12 @@ def test_committed_regions_table_is_the_readmes():
     assert csvs and committed.is_file(), ("results/regions/*.csv and regions.md are committed: kexp-results table "
                                           "results/regions/*.csv > results/regions.md")
     assert table(csvs).strip() == committed.read_text().strip()
-    assert committed.read_text().strip() in (root / "README.md").read_text()
+    assert '\n--8<-- "results/regions.md"\n' in (root / "docs" / "results.md").read_text()
 
 
-def test_committed_region_map_table_is_the_readmes():
+def test_committed_region_map_table_is_the_docs():
     """results/regions_map.md is `kexp-results table results/regions/map/*.csv` (the maps' 400 x0 per row: the
-    row's 100 and default_rng(43)'s 300), and the README shows it."""
+    row's 100 and default_rng(43)'s 300), and docs/results.md includes it."""
     from pathlib import Path
 
     from kexp.app.results import table
@@ -102,7 +102,7 @@ def test_committed_region_map_table_is_the_readmes():
                                           "table results/regions/map/*.csv > results/regions_map.md")
     assert all(sum(1 for _ in open(c)) == 401 for c in csvs)      # 400 x0 and the header
     assert table(csvs).strip() == committed.read_text().strip()
-    assert committed.read_text().strip() in (root / "README.md").read_text()
+    assert '\n--8<-- "results/regions_map.md"\n' in (root / "docs" / "results.md").read_text()
 
 
 def test_a_panel_is_labelled_by_system_and_configuration():

@@ -71,10 +71,10 @@ def test_report_roa_labels_title_and_legend_counts(sweep, tmp_path, saved):
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("theta(0)", "omega(0)")  # pendulum's names, not x1(0), x2(0)
     title = ax.get_title()
     assert "(all)" not in title and "pendulum, lmpc: all 5 runs of the sweep" in title
-    assert "success: ‖x(T) − x_eq‖ < 0.01 at T = 5 s" in title
+    assert "settled: ‖x(T) − x_eq‖ < 0.01 at T = 5 s" in title
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert legend == ["success (2)", "not settled by T (‖x(T)‖ < 10·tol) (1)", "failed (1)",
-                      "job did not complete (1)"]
+    assert legend == ["settled (2)", "unsettled, near (‖x(T)‖ < 10·tol) (1)", "unsettled (1)",
+                      "error (1)"]
     assert "5 runs" in fig._suptitle.get_text()
 
 

@@ -111,7 +111,8 @@ def test_valid_csvs_still_give_the_tables(tmp_path, capsys):
     code, out, err = _run(capsys, "table", lmpc, oracle, lmpc)          # the same file twice counts once
     assert code == 0 and err == []
     lines = out.splitlines()
-    assert len(lines) == 4 and lines[2].startswith("| vdp | lmpc | 1/3 | 1.500 | 2.000 | 1.000 | 1.000 | 2.50 |")
+    assert len(lines) == 6 and lines[2].startswith("| vdp | lmpc | 1/3 | 1.500 | 2.000 | 1.000 | 1.000 | 2.50 |")
+    assert lines[5] == "J_oracle (J*): the true-model NMPC solved by CasADi + IPOPT for every system."
     old = tmp_path / "old" / "vdp_lqr.csv"        # written before the condition columns existed
     old.parent.mkdir()
     old.write_text("x0_1,x0_2,status,success,cost\n0.0,0.5,completed,True,1.0\n")

@@ -8,6 +8,7 @@ import pytest
 
 from kexp.app.aggregate import ReportError
 from kexp.app.results import COLUMNS
+from kexp.app.results import table as results_table
 from kexp.app.robustness import load, table
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
@@ -47,11 +48,32 @@ def test_ratios_against_the_oracle_under_the_same_conditions(tmp_path):
     assert lines[3] == "| vdp | regressed, data raw | 1 % | nominal | 3/3 | 2.000 / 2 | 3/3 | 1.000 / 3 | 3/3 |"
     assert lines[4] == "| vdp | regressed, data SG 21 | 1 % | nominal | 2/3 | 1.250 / 1.5 | 3/3 | 1.000 / 3 | 3/3 |"
     assert lines[5] == "| vdp | regressed | 0 | μ = 1.2 | 3/3 | no oracle | – | – | – |"
-    assert len(lines) == 6
+    assert lines[6:] == ["", "J_oracle (J*): the true-model NMPC solved by CasADi + IPOPT for every system."]
+
     # without an oracle under 1 % noise: against the noise-free one, marked †
     (tmp_path / "vdp_nmpc-noise1.csv").unlink()
     lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
     assert lines[4] == "| vdp | regressed, data SG 21 | 1 % | nominal | 2/3 | 2.500 / 3 † | 3/3 | 2.000 / 6 † | – |"
+
+
+def test_the_table_says_which_solver_made_each_systems_oracle(tmp_path):
+    o = np.array([1.0, 2.0])
+    _write(tmp_path / "vdp_nmpc.csv", o, controller="nmpc_oracle")
+    _write(tmp_path / "vdp_lmpc.csv", o, controller="lmpc")
+    _write(tmp_path / "pend_nmpc.csv", o, controller="nmpc_sqp")
+    _write(tmp_path / "pend_lmpc.csv", 1.5 * o, controller="lmpc")
+    lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
+    assert "| pend | known | 0 | nominal | 2/2 | 1.500 / 1.5 | – | – | 2/2 |" in lines   # an SQP oracle is an oracle
+    assert lines[-1] == ("J_oracle (J*): the true-model NMPC solved by CasADi + IPOPT (vdp); kexp's compiled SQP "
+                         "(pend).")
+    assert results_table(sorted(tmp_path.glob("*.csv"))).splitlines()[-1] == lines[-1]
+    # a long-horizon oracle row (results/horizon/) is a row of the results table against J_oracle, not J_oracle
+    h300 = _write(tmp_path / "vdp_nmpc-h300.csv", 0.9 * o, controller="nmpc_sqp")
+    got = results_table(sorted(tmp_path.glob("*.csv"))).splitlines()
+    assert got[-1] == lines[-1]
+    assert any(r.startswith("| vdp | nmpc-h300 | 2/2 | 1.350 | 1.800 | 0.900 | 0.900 |") for r in got)
+    assert results_table([tmp_path / "vdp_nmpc.csv", h300]).splitlines()[-1] == \
+        "J_oracle (J*): the true-model NMPC solved by CasADi + IPOPT for every system."
 
 
 def test_an_oracle_run_without_a_cost_leaves_its_x0_out_of_the_ratios(tmp_path):
@@ -83,9 +105,10 @@ def test_data_noise_estimator_and_draws_per_x0_are_conditions(tmp_path):
     _write(tmp_path / "vdp_lmpc-reg-dn3-mn1-iv.csv", o * [1.0, 1.02, 1.04], controller="lmpc", inputs="regression",
            noise=0.01, data_noise=0.03, per_x0=True, estimator="iv")
     lines = table(sorted(tmp_path.glob("*.csv"))).splitlines()
-    assert lines[2:] == [
+    assert lines[2:4] == [
         "| vdp | regressed, data raw 3 % | 1 % per x0 | nominal | 0/3 | 100.000 / 100 | 3/3 | 1.500 / 1.5 | 3/3 |",
         "| vdp | regressed, data raw 3 %, IV | 1 % per x0 | nominal | 3/3 | 1.020 / 1.04 | 3/3 | 1.500 / 1.5 | 3/3 |"]
+    assert lines[4] == "" and lines[5].startswith("J_oracle (J*)") and len(lines) == 6
 
 
 def test_refusals(tmp_path):
@@ -111,12 +134,13 @@ def test_committed_robustness_table_is_generated_from_the_committed_csvs():
     assert table(csvs).strip() == committed.read_text().strip()
 
 
-def test_readme_shows_the_committed_robustness_table():
+def test_the_docs_include_the_committed_robustness_table():
+    """Its one source is the generator's file: docs/results.md includes it (tests/test_docs.py renders it)."""
     committed = RESULTS / "robustness.md"
     assert committed.is_file(), ("results/robustness.md is committed: kexp-results robustness results/*.csv "
                                  "results/robustness/*.csv > results/robustness.md")
-    readme = (RESULTS.parent / "README.md").read_text()
-    assert committed.read_text().strip() in readme
+    page = (RESULTS.parent / "docs" / "results.md").read_text()
+    assert '\n--8<-- "results/robustness.md"\n' in page
 
 
 def _stubbed_results(tmp_path, collected=None):

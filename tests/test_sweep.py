@@ -74,20 +74,22 @@ def test_joblib_sweep_runs_both_initial_conditions(joblib_sweep):
 
 
 @pytest.mark.slow
-def test_a_sweep_job_prints_one_line(joblib_sweep):
-    """Each job prints one result line (was ~31 lines of model and CLF summary, interleaved across jobs); Hydra's
-    own launch lines stay; no main.log in the job folders."""
+def test_a_sweep_prints_a_launch_line_a_line_per_job_and_a_closing_line(joblib_sweep):
+    """kexp's launch line instead of Hydra's line per job, a [k/N] line per job as it ends (its word, number,
+    swept overrides, main numbers), a closing line; nothing else on stdout; no main.log in the job folders."""
     lines = (joblib_sweep.parent / "stdout.txt").read_text().splitlines()
-    hydra = [ln for ln in lines if ln.startswith("[")]
-    jobs = sorted(ln for ln in lines if not ln.startswith("["))
-    assert len(hydra) == 4 and "Launching jobs" in hydra[1]  # Joblib.Parallel, Launching jobs, #0 :, #1 :
-    assert len(jobs) == 2, lines
+    assert lines[0] == f"kexp: sweep of 2 jobs (2 workers) -> {joblib_sweep}"
+    jobs = sorted(lines[1:3], key=lambda ln: ln.split()[2])
+    assert sorted(ln[:5] for ln in lines[1:3]) == ["[1/2]", "[2/2]"] and len(lines) == 4, lines
     runs = _summaries(joblib_sweep)
     for num, line in enumerate(jobs):
         m = runs[str(num)]["metrics"]
-        assert line.startswith(f"#{num} {'SUCCESS' if m['success'] else 'FAILED'} (completed): ")
-        assert f"J = {m['cost']:.4f}" in line and line.endswith(str(joblib_sweep / str(num)))
-    assert jobs[0].startswith("#0 SUCCESS") and jobs[1].startswith("#1 FAILED")
+        word = "settled" if m["success"] else "unsettled"
+        assert line[6:].startswith(f"{word:<10} #{num} sim.x0=[{runs[str(num)]['x0'][0]},")   # sim.tol is common
+        assert f"J = {m['cost']:.4g}" in line and "sim.tol" not in line
+    assert jobs[0].split()[1] == "settled" and jobs[1].split()[1] == "unsettled"
+    assert lines[3].startswith("kexp: sweep done in ") and lines[3].endswith(
+        f": 2/2 completed (1 settled, 1 unsettled), 0 errors; kexp-report {joblib_sweep}")
     assert not list(joblib_sweep.glob("*/*.log")) and (joblib_sweep / "0" / ".hydra" / "config.yaml").is_file()
 
 
@@ -97,7 +99,7 @@ def test_report_over_joblib_sweep(joblib_sweep, tmp_path):
     proc = subprocess.run(_script("kexp-report") + [str(joblib_sweep), "-o", str(out)], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert "2 runs, 2 completed, 0 failed; success 1/2 (50 %)" in proc.stdout
+    assert "2 runs: 2 completed, 0 errors; settled 1/2 (50 %)" in proc.stdout
     rows = _csv_rows(out / "report.csv")
     assert len(rows) == 2
     by_x0 = {tuple(json.loads(r["x0"])): r for r in rows}
@@ -123,9 +125,9 @@ def test_report_over_joblib_sweep(joblib_sweep, tmp_path):
     assert float(summary[0]["cost_worst"]) == pytest.approx(costs[1])
     assert float(summary[0]["cost_median"]) == pytest.approx(sum(costs) / 2)
     md = (out / "report.md").read_text()
-    assert "**2 runs**: 2 completed, 0 failed; success 1/2 (50 %)" in md
+    assert "**2 runs**: 2 completed, 0 errors; settled 1/2 (50 %)" in md
     assert "| (all) | 2 | 0 | 1/2 (50 %) |" in md
-    assert "## Failed runs (0)" in md and "| [1.5, 1.5] | completed | no |" in md
+    assert "## Runs that stopped with an error (0)" in md and "| [1.5, 1.5] | completed | no |" in md
     _check_pictures(out, md)
 
 
@@ -149,7 +151,7 @@ def test_pictures_are_optional_without_matplotlib(joblib_sweep, tmp_path, monkey
     assert rep.NO_MATPLOTLIB in (tmp_path / "report.md").read_text() and not list(tmp_path.glob("*.png"))
 
 
-def test_job_without_summary_is_counted_as_failed(joblib_sweep, tmp_path, capsys):
+def test_job_without_summary_is_counted_as_an_error(joblib_sweep, tmp_path, capsys):
     sweep = tmp_path / "sweep"
     shutil.copytree(joblib_sweep, sweep, ignore=shutil.ignore_patterns("*.mcap", "*.npz", "report*", "*.png"))
     (sweep / "1" / "summary.json").unlink()  # as a job that crashed before its run started
@@ -163,10 +165,10 @@ def test_job_without_summary_is_counted_as_failed(joblib_sweep, tmp_path, capsys
         rep.main([str(sweep)])
     assert exc.value.code == 0
     stdout = capsys.readouterr().out
-    assert "2 runs, 1 completed, 1 failed; success 1/2 (50 %)" in stdout
-    assert "failed: 1 sim.x0=[1.5,1.5]: no summary.json" in stdout
+    assert "2 runs: 1 completed, 1 error; settled 1/2 (50 %)" in stdout
+    assert "error: 1 sim.x0=[1.5,1.5]: no summary.json" in stdout
     md = (sweep / "report.md").read_text()
-    assert "## Failed runs (1)" in md and "- `1` sim.x0=[1.5,1.5]: no summary.json" in md
+    assert "## Runs that stopped with an error (1)" in md and "- `1` sim.x0=[1.5,1.5]: no summary.json" in md
     assert "| (all) | 2 | 1 | 1/2 (50 %) |" in md
     rows_csv = _csv_rows(sweep / "report.csv")
     assert [r["status"] for r in rows_csv] == ["completed", "missing"]
@@ -183,7 +185,7 @@ def test_job_without_summary_is_counted_as_failed(joblib_sweep, tmp_path, capsys
     (sweep / "1" / "summary.json").write_text(json.dumps(s))
     bad = agg.aggregate(sweep)[1]
     assert not bad["ok"] and bad["status"] == "diverged" and bad["reason"] == "status 'diverged': " + s["message"]
-    assert agg.summarize(agg.aggregate(sweep))[0]["failed"] == 1
+    assert agg.summarize(agg.aggregate(sweep))[0]["errors"] == 1
 
 
 def test_jobs_the_sweep_never_started_are_listed(joblib_sweep, tmp_path):
@@ -197,7 +199,7 @@ def test_jobs_the_sweep_never_started_are_listed(joblib_sweep, tmp_path):
     assert rows[2]["status"] == "not started" and rows[2]["x0"] == [0.0, -1.0]
     assert rows[2]["job"] == "(not started #2)" and rows[2]["reason"].startswith("not started")
     summary = agg.summarize(rows)[0]
-    assert (summary["runs"], summary["completed"], summary["failed"], summary["successes"]) == (3, 2, 1, 1)
+    assert (summary["runs"], summary["completed"], summary["errors"], summary["successes"]) == (3, 2, 1, 1)
     assert summary["success_rate"] == 1 / 3          # of the runs planned, not of those that completed
 
 
@@ -268,7 +270,8 @@ def test_a_broken_job_does_not_stop_the_sweep(tmp_path):
     assert runs["1"]["status"] == "completed" and runs["1"]["completed"]
     assert "kexp: error: sim.x0=[0.1, 0.2, 0.3]" in proc.stderr
     assert f"give 2 finite numbers (job #0: {sweep / '0'})" in proc.stderr  # which job, in the same line
-    assert [ln[:12] for ln in proc.stdout.splitlines() if not ln.startswith("[")] == ["#1 SUCCESS ("]
+    assert sorted(ln.split()[1:3] for ln in proc.stdout.splitlines() if ln.startswith("[")) == [
+        ["error", "#0"], ["settled", "#1"]]
     rows = agg.aggregate(sweep)
     assert sorted(r["status"] for r in rows) == ["completed", "error"]
 

@@ -28,6 +28,11 @@ def _job_lines(stdout: str) -> list[str]:
     return [ln for ln in stdout.splitlines() if ln.startswith("#")]
 
 
+def _progress(stdout: str) -> dict[str, str]:
+    """Job ("#0") -> its word, from the sweep's ``[k/N] word #num …`` lines."""
+    return {ln.split()[2]: ln.split()[1] for ln in stdout.splitlines() if ln.startswith("[")}
+
+
 # -- exit code ----------------------------------------------------------------------------------------------------
 def test_a_sweep_whose_job_fails_exits_2_after_all_jobs_with_a_closing_line(tmp_path):
     """Job 1's x0 has 3 components for a 2-state system: it stops with its one-line error, jobs 0 and 2 still
@@ -42,7 +47,7 @@ def test_a_sweep_whose_job_fails_exits_2_after_all_jobs_with_a_closing_line(tmp_
     assert summaries["1"]["status"] == "error"
     assert summaries["0"]["completed"] and summaries["2"]["completed"]
     assert summaries["2"]["metrics"]["success"] is False   # did not settle: counted as a result
-    assert [ln[:10] for ln in _job_lines(proc.stdout)] == ["#0 SUCCESS", "#2 FAILED "]
+    assert _progress(proc.stdout) == {"#0": "settled", "#1": "error", "#2": "unsettled"}
 
 
 def test_a_job_that_raised_is_counted_its_traceback_printed_and_the_sweep_goes_on(capsys):
@@ -90,7 +95,8 @@ def test_resume_runs_again_only_the_jobs_without_a_completed_run(tmp_path):
     lines = _job_lines(resumed.stdout)
     assert [ln.split(" (")[0] for ln in lines if "sweep.resume" in ln] == [
         "#0 skipped", "#1 runs again", "#2 runs again", "#3 skipped"]
-    assert sorted(ln.split(" ")[0] for ln in lines if "completed):" in ln) == ["#1", "#2"]
+    assert sorted(_progress(resumed.stdout)) == ["#1", "#2"]   # k counts the skipped: [3/4], [4/4]
+    assert sorted(ln[:5] for ln in resumed.stdout.splitlines() if ln.startswith("[")) == ["[3/4]", "[4/4]"]
     assert "kexp: sweep.resume: 2 of 4 jobs were complete and skipped, 2 launched" in resumed.stdout
     after = _files(sweep)
     for job in ("0", "3"):   # skipped: byte-identical, .hydra included

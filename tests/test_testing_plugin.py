@@ -111,14 +111,14 @@ def test_bad_policy(kexp_golden):
 
 
 def test_the_readme_worked_example_runs_as_written(pytester, tmp_path):
-    """The README's example, extracted verbatim: a real experiment, golden written on the first run, equal on the
+    """The docs' example (docs/guides/pytest-plugin.md), extracted verbatim: a real experiment, golden written on the first run, equal on the
     second (a fresh experiment in a fresh folder, so this is a real re-run)."""
     from pathlib import Path
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    readme = (Path(__file__).resolve().parents[1] / "docs" / "guides" / "pytest-plugin.md").read_text()
     start = readme.index("# tests/test_my_controller.py")
     code = readme[start:readme.index("```", start)]
     code = code.replace('"sim.T=2.0"', '"sim.T=0.5", "logging.progress=false", f"cache.dir={CACHE!r}"')
-    assert 'f"cache.dir=' in code, "the README example changed: update this test's small-run edit"
+    assert 'f"cache.dir=' in code, "the docs' example changed: update this test's small-run edit"
     pytester.makepyfile(test_my_controller=f"CACHE = {str(tmp_path / 'cache')!r}\n" + code)
     first = pytester.runpytest_subprocess()
     first.assert_outcomes(failed=1)

@@ -27,7 +27,7 @@ from ..app.aggregate import ReportError
 from ..app.results import oserror, split_name
 from ..cli import Parser
 from ..errors import KexpError, SystemDefinitionError
-from ..recording.reader import LogError, read_log
+from ..recording.reader import LogError, log_path, read_log
 from .roa import _plt, omega_curves, roa_figure  # noqa: F401  (roa_figure: kexp-figures roa; re-exported)
 
 
@@ -155,12 +155,13 @@ def theorem1_figure(run_dir: str | Path, out: str | Path, horizon: float = 2.0) 
     from .theorem1 import estimate_constants, measured_error
     out = out_path(out)
     run_dir = Path(run_dir)
-    mcap = run_dir / "run.mcap"
     if run_dir.is_file() or (run_dir.suffix == ".mcap" and not run_dir.is_dir()):
         if run_dir.suffix != ".mcap":
             raise FigureError(f"{run_dir}: not a run folder nor an .mcap log; pass the run's folder (holding "
                               "run.mcap and model.npz) or its run.mcap")
         run_dir, mcap = run_dir.parent, run_dir
+    else:
+        mcap = log_path(run_dir)
     log = read_log(mcap)
     model = KoopmanBilinearModel.load(run_dir / "model.npz")
     cfg = (log.one("/config") or {}).get("config") or {}
@@ -223,7 +224,7 @@ def main(argv=None) -> None:
                       + (f" ({g['runs'] - g['drawn']} without a usable x0, not drawn)" if g["drawn"] < g["runs"]
                          else ""))
             for f in facts["failed"][:20]:
-                print(f"  failed: {f['job']} {f['overrides']}: {f['reason']}")
+                print(f"  error: {f['job']} {f['overrides']}: {f['reason']}")
             if len(facts["failed"]) > 20:
                 print(f"  ... and {len(facts['failed']) - 20} more (kexp-report lists them all)")
         else:

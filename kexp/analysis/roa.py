@@ -6,10 +6,11 @@ system: runs of different systems or settings are never drawn in one panel.  A 2
 x-space with Ω_r and Ω_r̂ (from the group's first log, their levels in the legend); an n-state group (n > 2) gets one panel per pair of
 states, each titled "projection onto (xi, xj)" (level sets are not curves in a projection: Ω_r is not drawn).
 Each panel's title states the success rule with the group's T and tol (``sim.T``, ``sim.tol`` from the job's
-.hydra/config.yaml or its log's /config).  A completed run without success is "not settled by T" when
-‖x(T) − x_eq‖ < 10·tol (it was converging: a longer T would likely count it) and "failed" otherwise.  Jobs that
-failed (error, interrupted, no summary) are drawn as grey crosses where their x0 is known, and every one of them is
-returned in ``failed`` with its reason, never dropped.
+.hydra/config.yaml or its log's /config).  Runs are named with the words of kexp's sweep lines
+(kexp.app.sweep_progress): a completed run is "settled" or "unsettled"; an unsettled one is drawn as "unsettled,
+near" when ‖x(T) − x_eq‖ < 10·tol (it was converging: a longer T would likely count it).  Jobs that stopped with an
+"error" (or were interrupted, or wrote no summary) are drawn as grey crosses where their x0 is known, and every one
+of them is returned in ``failed`` with its reason, never dropped.
 """
 from __future__ import annotations
 
@@ -25,10 +26,10 @@ from ..systems.registry import builtin_state_names
 
 MAX_GROUPS = 8       # more groups than this: refuse, listing them (one figure per group is unreadable beyond)
 MAX_PAIRS = 6        # n > 4: the first 6 state pairs
-NOT_SETTLED = "not settled by T (‖x(T)‖ < 10·tol)"
-KINDS = (("success", dict(marker="o", color="tab:green")),
-         (NOT_SETTLED, dict(marker="^", color="tab:orange")), ("failed", dict(marker="o", color="tab:red")),
-         ("diverged", dict(marker="x", color="tab:red")), ("failed job", dict(marker="x", color="0.5")))
+NOT_SETTLED = "unsettled, near (‖x(T)‖ < 10·tol)"
+KINDS = (("settled", dict(marker="o", color="tab:green")),
+         (NOT_SETTLED, dict(marker="^", color="tab:orange")), ("unsettled", dict(marker="o", color="tab:red")),
+         ("diverged", dict(marker="x", color="tab:red")), ("error", dict(marker="x", color="0.5")))
 
 
 class RoaError(KexpError):
@@ -36,13 +37,13 @@ class RoaError(KexpError):
 
 
 def run_kind(row: dict, tol: float | None = None) -> str:
-    """How a run is drawn: success, not settled by T (‖x(T)‖ < 10·tol), failed, diverged or failed job."""
+    """How a run is drawn: settled, unsettled near (‖x(T)‖ < 10·tol), unsettled, diverged or error."""
     if row["ok"]:
         if row["success"]:
-            return "success"
+            return "settled"
         err = row.get("final_error")
-        return NOT_SETTLED if tol is not None and err is not None and err < 10 * tol else "failed"
-    return "diverged" if row["status"] == "diverged" else "failed job"
+        return NOT_SETTLED if tol is not None and err is not None and err < 10 * tol else "unsettled"
+    return "diverged" if row["status"] == "diverged" else "error"
 
 
 def _level(v) -> float | None:
@@ -84,7 +85,7 @@ def success_rule(sims: list[dict]) -> str:
         values = sorted({s[key] for s in sims if s.get(key) is not None})
         return " / ".join(f"{v:g}" for v in values) if values else None
     tol, T = joined("tol"), joined("T")
-    return f"success: ‖x(T) − x_eq‖ < {tol or 'tol'} at {'T' if T is None else f'T = {T} s'}"
+    return f"settled: ‖x(T) − x_eq‖ < {tol or 'tol'} at {'T' if T is None else f'T = {T} s'}"
 
 
 def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
@@ -195,7 +196,7 @@ def roa_figure(sweep: str | Path, out: str | Path, *, max_groups: int = MAX_GROU
     if any(n > 2 for n, *_ in metas):
         notes.append("n > 2: projections of x0, Ω_r not drawn")
     if facts["failed"]:
-        notes.append(f"{len(facts['failed'])} failed job(s), grey × where x0 is known")
+        notes.append(f"{len(facts['failed'])} error(s), grey × where x0 is known")
     not_drawn = sum(g["runs"] - g["drawn"] for g in facts["groups"])
     if not_drawn:
         notes.append(f"{not_drawn} run(s) without a usable x0 not drawn")

@@ -6,7 +6,7 @@
 A job that did not complete is never dropped: it gets a row with its ``reason`` (no summary.json, interrupted,
 diverged, unreadable), and a job that the sweep planned (``multirun.yaml``, basic sweeper) but never started
 gets a row too.  :func:`summarize` condenses the rows per group of identical overrides apart from ``sim.x0``
-(runs, completed, failed, successes, median / worst cost, median solve time, worst p99 solve time).
+(runs, completed, errors, successes, median / worst cost, median solve time, worst p99 solve time).
 """
 from __future__ import annotations
 
@@ -162,7 +162,9 @@ def _row(job: Path, root: Path, overrides: list[str] | None, summary: dict | Non
     clf = summary.get("clf") or {}
     cert = clf.get("certificate") or {}
     status = summary.get("status")
-    completed = bool(summary.get("completed")) and status == "completed"
+    # a system=data run without a plant stops after identification and its certificate ("identified", data_only.py):
+    # it completed what it set out to do, with no closed loop and so no success
+    completed = bool(summary.get("completed")) and status in ("completed", "identified")
     settle = _num(m.get("settling_time"))
     if settle is None and "settling_time" in m and summary.get("completed"):
         settle = math.inf  # summary.json writes inf (never settled within tol) as null
@@ -317,8 +319,8 @@ def _max(xs: Iterable[float | None]) -> float | None:
 
 
 def summarize(rows: list[dict]) -> list[dict]:
-    """Per group of identical overrides apart from ``sim.x0``: runs, completed, failed, successes (a failed job
-    counts as no success), median / worst cost and median solve time over the runs that have them."""
+    """Per group of identical overrides apart from ``sim.x0``: runs, completed, errors (runs that stopped with an
+    error, or never wrote a completed summary), successes (settled runs; an error counts as not settled), median / worst cost and median solve time over the runs that have them."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(r.get("_group_key", ()), []).append(r)
@@ -328,7 +330,7 @@ def summarize(rows: list[dict]) -> list[dict]:
         ok = sum(r["ok"] for r in members)
         succ = sum(bool(r["success"]) for r in members)
         out.append({
-            "group": members[0].get("group", "(all)"), "runs": n, "completed": ok, "failed": n - ok,
+            "group": members[0].get("group", "(all)"), "runs": n, "completed": ok, "errors": n - ok,
             "successes": succ, "success_rate": succ / n,
             "cost_median": _median(r["cost"] for r in members), "cost_worst": _max(r["cost"] for r in members),
             "solve_median_ms": _median(r["solve_median_ms"] for r in members),

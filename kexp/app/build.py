@@ -287,6 +287,8 @@ def build_clf(cfg: Mapping[str, Any]):
 
 
 CONTROLLER_KINDS = ("lmpc", "explicit", "lqr", "nmpc")
+ORACLE_SOLVERS = ("sqp", "ipopt")               # controller.solver (kind nmpc)
+ORACLE_INITS = ("lqr", "zero")                  # controller.init (kind nmpc): the first guess after a reset
 LINEARISATIONS = ("auto", "formula", "plant")   # controller.linearisation (kind lqr)
 
 
@@ -303,6 +305,8 @@ class ControllerSpec:
     q: float = 1.0
     r: float = 1.0
     horizon: int = 100         # nmpc: prediction horizon in steps
+    solver: str = "sqp"        # nmpc: kexp's compiled SQP or CasADi + IPOPT (ORACLE_SOLVERS)
+    init: str = "lqr"          # nmpc: the first guess after a reset (ORACLE_INITS)
     linearisation: str = "auto"  # lqr: formula (F, G) | plant (finite differences of its step) | auto
 
 
@@ -310,14 +314,14 @@ def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
     from ..control import LAWS, LmpcConfig
     cfg = dict(_plain(cfg))
     # the schema holds every kind's keys; null ones are not set (kexp.app.schema.ControllerSchema)
-    cfg = {k: v for k, v in cfg.items() if not (k in ("lmpc", "q", "r", "horizon", "linearisation") and v is None)}
+    cfg = {k: v for k, v in cfg.items() if not (k in ("lmpc", "q", "r", "horizon", "linearisation", "solver", "init") and v is None)}
     kind = cfg.pop("kind", None)
     if kind not in CONTROLLER_KINDS:
         raise ConfigError(f"controller.kind={kind!r}; valid: {CONTROLLER_KINDS}")
     # 'lmpc' is accepted for every kind (used by kind lmpc only), so that `+experiment=X controller=lqr` works
     # on a preset that tunes the LMPC
     allowed = {"law", "law_params", "u_min", "u_max", "lmpc"} \
-        | ({"q", "r"} if kind in ("lqr", "nmpc") else set()) | ({"horizon"} if kind == "nmpc" else set()) \
+        | ({"q", "r"} if kind in ("lqr", "nmpc") else set()) | ({"horizon", "solver", "init"} if kind == "nmpc" else set()) \
         | ({"linearisation"} if kind == "lqr" else set())
     for key in cfg:
         if key not in allowed:
@@ -337,12 +341,21 @@ def build_controller_spec(cfg: Mapping[str, Any]) -> ControllerSpec:
     horizon = cfg.get("horizon", 100)
     if not (isinstance(horizon, int) and not isinstance(horizon, bool) and horizon >= 1):
         raise ConfigError(f"controller.horizon={horizon!r}: use an int >= 1")
+    solver = cfg.get("solver", "sqp")
+    if solver not in ORACLE_SOLVERS:
+        raise ConfigError(f"controller.solver={solver!r}; valid: {ORACLE_SOLVERS} (sqp: kexp's compiled SQP, ipopt: "
+                          "CasADi + IPOPT; the same problem)")
+    init = cfg.get("init", "lqr")
+    if init not in ORACLE_INITS:
+        raise ConfigError(f"controller.init={init!r}; valid: {ORACLE_INITS} (the oracle's first guess: the LQR "
+                          "feedback rolled out, or zero inputs)")
     linearisation = cfg.get("linearisation", "auto")
     if linearisation not in LINEARISATIONS:
         raise ConfigError(f"controller.linearisation={linearisation!r}; valid: {LINEARISATIONS} (auto: the formula's "
                           "F and G where the system has them, the plant's step otherwise)")
     return ControllerSpec(kind=kind, law=law, law_params=dict(cfg.get("law_params") or {}), u_min=to_t(u_min),
-                          u_max=to_t(u_max), lmpc=lmpc, q=q, r=r, horizon=horizon, linearisation=linearisation)
+                          u_max=to_t(u_max), lmpc=lmpc, q=q, r=r, horizon=horizon, solver=solver,
+                          init=init, linearisation=linearisation)
 
 
 def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_every: int = 0, ext_plant=None):
@@ -361,9 +374,12 @@ def build_controller(spec: ControllerSpec, system, model, clf, *, prediction_eve
     if spec.kind == "explicit":
         return ExplicitController(law, clf)
     if spec.kind == "nmpc":
-        from ..control.oracle import NmpcOracle
-        return NmpcOracle(system, None, spec.u_min, spec.u_max, horizon_steps=spec.horizon, dt=model.dt, q=spec.q,
-                          r=spec.r, terminal="lqr", clf=clf, law=law)
+        if spec.solver == "sqp":
+            from ..control.sqp_oracle import SqpOracle as Oracle
+        else:
+            from ..control.oracle import NmpcOracle as Oracle
+        return Oracle(system, None, spec.u_min, spec.u_max, horizon_steps=spec.horizon, dt=model.dt, q=spec.q,
+                      r=spec.r, terminal="lqr", clf=clf, law=law, init=spec.init)
     from ..plants import PlantSystem
     no_formula = isinstance(system, PlantSystem)
     if spec.linearisation == "formula" and no_formula:

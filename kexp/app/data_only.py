@@ -94,9 +94,3 @@ def identified_metrics(chash: str, system, model_info: dict, noise: dict, clf, v
             "versions": versions, "lock": lock,
             "cache": {"dir": str(cache.dir) if cache.enabled else None, "hits": cache.hits, "misses": cache.misses},
             "files": {"model": model_file}}
-
-
-def job_line(num: int, metrics: dict, out_dir) -> str:
-    """A sweep job's line for a run that stopped after the certificate."""
-    return (f"#{num} IDENTIFIED (no plant: no closed loop): k = {metrics['model']['k']}, CLF "
-            f"{metrics['clf']['status']}; {out_dir}")

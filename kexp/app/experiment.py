@@ -81,13 +81,7 @@ def config_dict(cfg: Any) -> dict:
         out["logging"] = {k: v for k, v in out["logging"].items() if k != "writer"}
     if "system" in out:
         out["system"] = system_settings(out["system"])
-    if isinstance(out.get("controller"), dict) and out["controller"].get("linearisation", "") is None:
-        del out["controller"]["linearisation"]   # unset (auto): the config and its hash as before the key existed
-    if out.get("plant") == _DEFAULT_PLANT:   # kexp's integrator: the config (and its hash) as before plants existed
-        del out["plant"]
-    if isinstance(out.get("sim"), dict) and out["sim"].get("realtime") is False:   # unpaced: the hash as before
-        out["sim"] = {k: v for k, v in out["sim"].items() if k != "realtime"}
-    for path, default in _LATER_KEYS.items():   # at their defaults: the config and its hash as before
+    for path, default in _LATER_KEYS.items():   # at their defaults: the config and its hash as before they existed
         out = _drop_default(out, path, default)
     return out
 
@@ -103,12 +97,6 @@ def _drop_default(d: dict, path: tuple[str, ...], default) -> dict:
     return {k: v for k, v in d.items() if k != head} if value == default and type(value) is type(default) else d
 
 
-# keys added after runs were logged, with the default that leaves a config's hash as it was (issue 34; the model
-# cache keys on the identification code's digest as well, so a changed default still re-identifies)
-_LATER_KEYS = {("identification", "fix_equilibrium"): None, ("identification", "estimator"): "ls",
-               ("identification", "iv_lag"): 1, ("sim", "noise", "per_x0"): False, ("data", "noise", "per_x0"): False}
-
-
 def _default_plant() -> dict:
     from dataclasses import asdict
     from ..plants import PlantConfig
@@ -116,6 +104,14 @@ def _default_plant() -> dict:
 
 
 _DEFAULT_PLANT = _default_plant()
+
+# keys added after runs were logged, with the default that leaves a config's hash as it was: the plant (kexp's
+# integrator), unpaced runs, the automatic linearisation, issue 34's identification and noise keys (the model
+# cache keys on the identification code's digest as well, so a changed default still re-identifies)
+_LATER_KEYS = {("plant",): _DEFAULT_PLANT, ("sim", "realtime"): False, ("controller", "linearisation"): None,
+               ("controller", "solver"): None, ("controller", "init"): None,
+               ("identification", "fix_equilibrium"): None, ("identification", "estimator"): "ls",
+               ("identification", "iv_lag"): 1, ("sim", "noise", "per_x0"): False, ("data", "noise", "per_x0"): False}
 
 
 def _perturbation(system, plant_params: dict, model, sim_cfg) -> dict:
@@ -410,7 +406,8 @@ def _run(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: conte
             echo(f"warning: {warning}")
             metrics.setdefault("warnings", []).append(warning)
         write_summary()
-    echo(f"result: {'SUCCESS' if m.success else 'FAILED'} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
+    from .sweep_progress import SETTLED, UNSETTLED   # one word per outcome, as a sweep's job lines
+    echo(f"result: {SETTLED if m.success else UNSETTLED} ({result.status}) — ‖x(T)‖ = {m.final_error:.2e}, "
          f"cost J = {m.cost:.4f}, settling {m.settling_time:.2f} s, max|u| = {m.max_abs_u:.3f}, "
          f"fallbacks {m.fallbacks}")
     echo(f"solve time per step: median {m.solve_time_median * 1e3:.2f} ms, p99 {m.solve_time_p99 * 1e3:.2f} ms, "

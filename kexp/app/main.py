@@ -1,22 +1,28 @@
 """The ``kexp`` command: a thin Hydra main around :func:`kexp.app.experiment.run`, after the command line's checks
-(kexp.app.precheck)."""
+(kexp.app.precheck).  Importing it stays light (Hydra's decorator, no numpy, no experiment code): ``kexp --help``
+and ``--version`` print before anything heavy is imported (kexp.app.help)."""
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
 import hydra
-import numpy as np
 from omegaconf import DictConfig
 
 from ..errors import KexpError
 from . import run_folder
-from .conf import CONF_DIR
-from .experiment import run
-from .precheck import precheck
+from .confdir import CONF_DIR
 
 run_folder.install()   # here, not only in main(): a joblib worker imports this module to unpickle the task
+
+
+def run(cfg, out_dir, **kwargs):
+    """:func:`kexp.app.experiment.run`, imported at its first call (the experiment code imports numpy, scipy and
+    the controllers: ``kexp --help`` does not wait for them)."""
+    from .experiment import run as run_experiment
+    return run_experiment(cfg, out_dir, **kwargs)
 
 
 @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
@@ -30,9 +36,8 @@ def _hydra_main(cfg: DictConfig) -> None:
         refused = run_folder.refusal(out_dir)   # its folder holds another run: nothing was written there
         if refused is not None:
             raise refused
-        if sweep_job:  # one line per job (parallel jobs would interleave the model and CLF summaries)
-            print(job_line(hc.job.num, run(cfg, out_dir, echo=_warnings_only, auto_progress=False),
-                           out_dir), flush=True)
+        if sweep_job:  # its warnings only: the kexp process prints its [k/N] line when it ends (resume.PROGRESS)
+            run(cfg, out_dir, echo=_warnings_only, auto_progress=False)
         else:
             run(cfg, out_dir)
     except KexpError as exc:  # bad input or a failed stage: one line, no traceback
@@ -79,25 +84,18 @@ def _warnings_only(line: str) -> None:
         print(line, flush=True)
 
 
-def job_line(num: int, metrics: dict, out_dir: Path) -> str:
-    """The one line a sweep job prints: its number (as in Hydra's "#0 : overrides" launch line), the verdict and
-    the main metrics of ``run``'s result (``metrics``), and its folder ``out_dir``."""
-    if "metrics" not in metrics:   # system=data without a plant: stopped after the certificate, no loop
-        from .data_only import job_line as identified_line
-        return identified_line(num, metrics, out_dir)
-    m = metrics["metrics"]
-    settle = m.get("settling_time")
-    settle = "inf" if settle is None or not np.isfinite(settle) else f"{settle:.2f} s"
-    return (f"#{num} {'SUCCESS' if m['success'] else 'FAILED'} ({metrics['status']}): ‖x(T)‖ = "
-            f"{m['final_error']:.2e}, J = {m['cost']:.4f}, settling {settle}, max|u| = {m['max_abs_u']:.3f}, "
-            f"fallbacks {m['fallbacks']}, solve median {m['solve_time_median'] * 1e3:.2f} ms; {out_dir}")
-
-
 def main() -> None:
+    from .. import __version__
+    from . import help as kexp_help
     if sys.argv[1:] == ["--version"]:  # Hydra's own --version prints Hydra's
-        from .. import __version__
         print(f"kexp {__version__}")
         return
+    if kexp_help.wants_help(sys.argv[1:]):   # kexp's page, not Hydra's (kexp --hydra-help for that)
+        print(kexp_help.page(CONF_DIR, __version__))
+        return
+    sys.argv[1:] = kexp_help.hydra_argv(sys.argv[1:])
+    from .conf import CONF_DIR as _registered  # noqa: F401 - kexp's schema in Hydra's ConfigStore
+    from .precheck import precheck
     sweep = precheck(sys.argv[1:])   # run_folder.install() ran when this module was imported
     from .sweeper import install, install_loader, workers_end_with_parent
     install()   # a sweep's batch check composes one job per structure, not every job (kexp/app/sweeper.py)
@@ -114,6 +112,8 @@ def _sweep_verdict() -> None:
     if tally is None:
         return
     out, err = tally.closing_lines()
+    if resume.PROGRESS is not None:
+        out.append(resume.PROGRESS.closing_line())
     for line in out:
         print(line, flush=True)
     for line in err:
@@ -123,5 +123,6 @@ def _sweep_verdict() -> None:
 
 
 if __name__ == "__main__":
+    import numpy as np
     np.set_printoptions(precision=4)
     main()

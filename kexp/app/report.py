@@ -26,7 +26,7 @@ PICTURES = {"roa": "roa.png", "cost": "cost_hist.png", "solve_time": "solve_time
 CSV_COLUMNS = ["job", "overrides", "system", "controller", "x0", "status", "success", "final_error", "cost",
                "settling_time_s", "max_abs_u", "fallbacks", "solve_median_ms", "solve_p99_ms", "certificate",
                "certificate_verdict", "clf_status", "wall_time_s", "reason", "all_overrides", "path"]
-SUMMARY_COLUMNS = ["group", "runs", "completed", "failed", "successes", "success_rate", "cost_median", "cost_worst",
+SUMMARY_COLUMNS = ["group", "runs", "completed", "errors", "successes", "success_rate", "cost_median", "cost_worst",
                    "solve_median_ms", "solve_p99_worst_ms"]
 NO_MATPLOTLIB = "pictures skipped: matplotlib is not installed (pip install matplotlib)"
 
@@ -77,6 +77,11 @@ def _md_cell(s: str) -> str:
     return s.replace("|", "\\|").replace("\n", " ")
 
 
+def errors(n: int) -> str:
+    """"1 error", "3 errors": runs that stopped with an error (kexp.app.sweep_progress's words)."""
+    return f"{n} error{'' if n == 1 else 's'}"
+
+
 def rate(successes: int, n: int) -> str:
     return f"{successes}/{n} ({100.0 * successes / n:.0f} %)" if n else "0/0"
 
@@ -86,20 +91,20 @@ def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: 
     n = len(rows)
     ok = sum(r["ok"] for r in rows)
     succ = sum(bool(r["success"]) for r in rows)
-    failed = [r for r in rows if not r["ok"]]
+    with_error = [r for r in rows if not r["ok"]]
     lines = [f"# kexp sweep report: {sweep_dir}", "",
-             f"**{n} runs**: {ok} completed, {len(failed)} failed; success {rate(succ, n)} "
-             "(a failed run counts as no success).", "",
+             f"**{n} runs**: {ok} completed, {errors(len(with_error))}; settled {rate(succ, n)} "
+             "(a run that stopped with an error counts as not settled).", "",
              "## Summary (per group of identical overrides apart from `sim.x0`)", "",
-             "| group | runs | failed | success | median cost | worst cost | median solve [ms] | worst p99 [ms] |",
+             "| group | runs | errors | settled | median cost | worst cost | median solve [ms] | worst p99 [ms] |",
              "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for g in groups:
-        lines.append(f"| {_md_cell(g['group'])} | {g['runs']} | {g['failed']} | {rate(g['successes'], g['runs'])} "
+        lines.append(f"| {_md_cell(g['group'])} | {g['runs']} | {g['errors']} | {rate(g['successes'], g['runs'])} "
                      f"| {_fmt(g['cost_median'])} | {_fmt(g['cost_worst'])} | {_fmt(g['solve_median_ms'], '.3f')} "
                      f"| {_fmt(g['solve_p99_worst_ms'], '.3f')} |")
-    lines += ["", f"## Failed runs ({len(failed)})", ""]
-    if failed:
-        lines += [f"- `{_md_cell(r['job'])}` {_md_cell(r['overrides'])}: {_md_cell(r['reason'])}" for r in failed]
+    lines += ["", f"## Runs that stopped with an error ({len(with_error)})", ""]
+    if with_error:
+        lines += [f"- `{_md_cell(r['job'])}` {_md_cell(r['overrides'])}: {_md_cell(r['reason'])}" for r in with_error]
     else:
         lines.append("none")
     lines += ["", "## Runs", "",
@@ -126,9 +131,9 @@ def write_markdown(rows: list[dict], groups: list[dict], path: Path, sweep_dir: 
 
 
 NOT_SETTLED = roa.NOT_SETTLED
-KINDS = (("success", dict(marker="o", color="tab:green")), (NOT_SETTLED, dict(marker="o", color="tab:orange")),
-         ("failed", dict(marker="o", color="tab:red")), ("diverged", dict(marker="x", color="tab:red")),
-         ("job did not complete", dict(marker="x", color="0.5")))
+KINDS = (("settled", dict(marker="o", color="tab:green")), (NOT_SETTLED, dict(marker="o", color="tab:orange")),
+         ("unsettled", dict(marker="o", color="tab:red")), ("diverged", dict(marker="x", color="tab:red")),
+         ("error", dict(marker="x", color="0.5")))
 EDGE = dict(edgecolor="white", linewidth=1.5)   # histogram bars: adjacent bins of one run each stay apart
 RUG_BELOW = 10                                 # fewer values than this: a rug of the values under the histogram
 
@@ -146,10 +151,10 @@ def _sim_settings(path: str) -> tuple[float | None, float | None]:
 
 
 def _kind(row: dict) -> str:
-    """kexp.analysis.roa's kind of a run (success, not settled by T, failed, diverged), a job that did not
-    complete named as such."""
+    """kexp.analysis.roa's kind of a run (settled, unsettled near, unsettled, diverged), a job that did not
+    complete an error."""
     if not row["ok"] and row["status"] != "diverged":
-        return "job did not complete"
+        return "error"
     return roa.run_kind(row, sim_settings(row)[1])
 
 
@@ -327,10 +332,10 @@ def _main(argv) -> int:
         return 2
     rows = res["rows"]
     n, ok = len(rows), sum(r["ok"] for r in rows)
-    print(f"kexp-report: {n} runs, {ok} completed, {n - ok} failed; success "
+    print(f"kexp-report: {n} runs: {ok} completed, {errors(n - ok)}; settled "
           f"{rate(sum(bool(r['success']) for r in rows), n)}")
     for r in [r for r in rows if not r["ok"]][:20]:
-        print(f"  failed: {r['job']} {r['overrides']}: {r['reason']}")
+        print(f"  error: {r['job']} {r['overrides']}: {r['reason']}")
     if n - ok > 20:
         print(f"  ... and {n - ok - 20} more (see report.md)")
     if res["picture_note"]:

@@ -62,6 +62,7 @@ class Tally:
 
 
 TALLY: Tally | None = None   # the last sweep of this process (the kexp command runs one)
+PROGRESS = None              # its lines (kexp.app.sweep_progress.Progress), made when its first batch launches
 
 
 def _key(override: str) -> str:
@@ -190,7 +191,14 @@ def launch(sweeper, launch_batch, batch: Sequence[Sequence[str]], initial_job_id
     """The launcher's ``launch(batch, initial_job_idx)`` with the jobs of a resumed sweep looked at first
     (``check``: the sweep folder held runs when the sweep started); the jobs to run are launched in runs of
     consecutive numbers, so that each keeps its number and folder."""
+    global PROGRESS
+    from .sweep_progress import Progress, workers_of
     tally = TALLY
+    if PROGRESS is None:
+        jobs = [job for b in (getattr(sweeper, "overrides", None) or [batch]) for job in b]
+        PROGRESS = Progress(tally.sweep_dir, jobs, workers_of(sweeper.config.hydra.launcher))
+        print(PROGRESS.launch_line(), flush=True)
+    progress = PROGRESS
     kinds = ["launch"] * len(batch)
     folders: list[Path | None] = [None] * len(batch)
     if check:
@@ -202,6 +210,7 @@ def launch(sweeper, launch_batch, batch: Sequence[Sequence[str]], initial_job_id
             if kind == "skip":
                 print(f"#{num} skipped ({RESUME_KEY}): {why}; {folder}", flush=True)
                 tally.skipped.append(num)
+                progress.skip()
             elif kind == "refuse":
                 print(f"kexp: error: {why} (job #{num})", file=sys.stderr, flush=True)
                 tally.refused.append(num)
@@ -228,7 +237,9 @@ def launch(sweeper, launch_batch, batch: Sequence[Sequence[str]], initial_job_id
         j = i
         while j < len(batch) and kinds[j] == "launch":
             j += 1
-        rets = list(launch_batch(batch[i:j], initial_job_idx=initial_job_idx + i))
+        with progress:   # a [k/N] line per job as it ends
+            rets = list(launch_batch(batch[i:j], initial_job_idx=initial_job_idx + i))
+        progress.finish([(initial_job_idx + i + n, _output_dir(r)) for n, r in enumerate(rets)])
         _tally_launched(tally, rets, initial_job_idx + i)
         results[i:j] = rets
         i = j
@@ -238,8 +249,12 @@ def launch(sweeper, launch_batch, batch: Sequence[Sequence[str]], initial_job_id
 def sweep(original, sweeper, arguments: list[str]):
     """``BasicSweeper.sweep`` (``original``) with ``sweep.resume`` taken out of the jobs' overrides, a sweep folder
     that holds runs refused unless resumed, and the jobs' outcomes tallied in :data:`TALLY`."""
-    global TALLY
+    global TALLY, PROGRESS
+    import logging
+
     from omegaconf import OmegaConf, open_dict, read_write
+    for name in ("hydra._internal.core_plugins.basic_launcher", "hydra_plugins"):   # its "#i : overrides" lines:
+        logging.getLogger(name).setLevel(logging.WARNING)                          # kexp's launch line says it
     config = sweeper.config
     resume = bool(OmegaConf.select(config, RESUME_KEY, default=False))
     task = [str(o) for o in config.hydra.overrides.task]
@@ -262,7 +277,7 @@ def sweep(original, sweeper, arguments: list[str]):
               f"overwrites a run: add {RESUME_KEY}=true to skip the completed jobs and run the others, or give "
               "another hydra.sweep.dir (nothing was changed)", file=sys.stderr)
         sys.exit(2)
-    TALLY = Tally(sweep_dir, resume)
+    TALLY, PROGRESS = Tally(sweep_dir, resume), None
     launcher = sweeper.launcher
     launch_batch = launcher.launch
     launcher.launch = lambda batch, initial_job_idx: launch(sweeper, launch_batch, batch, initial_job_idx,

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .aggregate import ReportError
-from .results import NO_ORACLE, is_ocp, read_csv, split_name, split_stem, x0_columns, x0_key
+from .results import NO_ORACLE, is_ocp, oracle_line, read_csv, split_name, split_stem, x0_columns, x0_key
 
 KINDS = ("lmpc", "lqr", "nmpc")
 
@@ -35,7 +35,7 @@ def _conditions(name: str, row: dict) -> tuple:
     controller its runs used (a paper-lmpc CSV in today's columns says controller lmpc, as the working preset's)."""
     configured = split_stem(name)[1].split("-")[0]
     controller = configured if configured not in KINDS else (row.get("controller") or configured)
-    controller = {"nmpc_oracle": "nmpc"}.get(controller, controller)
+    controller = {"nmpc_oracle": "nmpc", "nmpc_sqp": "nmpc"}.get(controller, controller)
     sim_noise = round(_f(row.get("sim_noise") or 0.0), 6)
     data_noise = row.get("data_noise")
     return (controller, row.get("inputs") or "projection", sim_noise, row.get("smoothing") or "none",
@@ -130,4 +130,5 @@ def table(paths) -> str:
             g += f", {estimator.upper()}"
         sigma = _noise(noise) + (" per x0" if per_x0 and noise != 0 else "")
         lines.append(f"| {system} | {g} | {sigma} | {_plant(mism)} | {ls} | {lr} | {qs} | {qr} | {os_} |")
-    return "\n".join(lines)
+    note = oracle_line(paths)
+    return "\n".join(lines + (["", note] if note else []))

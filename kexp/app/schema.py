@@ -152,6 +152,8 @@ def _build() -> type:
         q: Optional[float] = None     # kinds lqr, nmpc
         r: Optional[float] = None
         horizon: Optional[int] = None  # kind nmpc
+        solver: Optional[str] = None  # kind nmpc: sqp | ipopt (null: sqp)
+        init: Optional[str] = None    # kind nmpc: lqr | zero (null: lqr)
         linearisation: Optional[str] = None  # kind lqr: auto | formula | plant (null: auto)
 
     ControllerSchema.__module__ = __name__

@@ -102,6 +102,7 @@ class StructureCachingConfigLoader(ConfigLoaderImpl):
     imports it."""
 
     def load_sweep_config(self, master_config, sweep_overrides):
+        from . import conf  # noqa: F401 - kexp's schema in this process's ConfigStore (a worker's too)
         watch_parent()   # where a job runs in a child of the kexp process, it ends with the kexp process
         return compose_job(self, master_config, list(sweep_overrides))
 

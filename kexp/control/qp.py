@@ -1,5 +1,6 @@
 """A guarded dense QP:  min ½xᵀHx + gᵀx  s.t.  Gx ≤ h_u,  x_l ≤ x ≤ x_u, on kexp's compiled interior-point
-solver (``solver='ipm'``, :mod:`kexp.control.ipm`) or on PIQP (``solver='piqp'``).
+solver (``solver='ipm'``, :mod:`kexp.control.ipm`), on DAQP (``solver='daqp'``, a dual active-set solver made for
+MPC QPs: exact active sets, warm-started from the previous solve's) or on PIQP (``solver='piqp'``).
 
 Every array is checked for shape and finiteness here first (PIQP only prints invalid input to ``setup()``/
 ``update()`` and a following ``solve()`` can crash the process, design §3).  The structure (sizes) is fixed at
@@ -7,9 +8,11 @@ construction; every solve returns a :class:`QpResult` with a status, never None.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
+import daqp
 import numpy as np
 import piqp
 from numba import njit
@@ -17,7 +20,11 @@ from numba import njit
 from ..errors import ConfigError
 from .ipm import MAX_ITER, SOLVED, STATUS_NAMES, solve_qp
 
-SOLVERS = ("ipm", "piqp")
+SOLVERS = ("ipm", "daqp", "piqp")
+# DAQP's exit flags (its include/constants.h): > 0 solved (2: solved with a soft constraint relaxed; kexp sets none)
+DAQP_STATUS = {1: "solved", 2: "solved", -1: "primal_infeasible", -2: "cycling", -3: "unbounded",
+               -4: "max_iter_reached", -5: "nonconvex", -6: "overdetermined_initial", -7: "time_limit",
+               -8: "unsupported"}
 
 
 @njit(cache=True)
@@ -67,9 +74,11 @@ class QpResult:
 
 class DenseQp:
     """A QP of fixed sizes (n variables, n_ineq rows of G), solved again and again with new data.  ``eps`` is the
-    convergence tolerance (absolute and relative), ``max_iter`` the iteration limit, ``solver`` 'ipm' or 'piqp'.
+    convergence tolerance (absolute and relative), ``max_iter`` the iteration limit, ``solver`` 'ipm', 'daqp' or 'piqp'.
     The interior point that reaches ``max_iter`` solves again with its safeguard (another ``max_iter`` at most;
-    the result's iterations count both passes)."""
+    the result's iterations count both passes).  DAQP: ``eps`` is its primal (constraint) tolerance, and as each
+    of its iterations adds or drops one constraint its limit is at least 2·(n + n_ineq); each solve starts from the
+    previous solve's active set (its workspace keeps it), except after a failure, which starts it afresh."""
 
     def __init__(self, n: int, n_ineq: int, *, eps: float = 1e-8, max_iter: int = 100, solver: str = "ipm"):
         if n < 1 or n_ineq < 0:
@@ -87,20 +96,25 @@ class DenseQp:
         _scan(H0, v, G0, np.zeros(n_ineq), v, v, v, v)
         if solver == "ipm":
             self._solve_ipm(H0, v, G0, np.ones(n_ineq), v - 1.0, v + 1.0)
+        if solver == "daqp":   # DAQP's bounds: the n simple bounds, then the n_ineq rows (no lower bound on them)
+            self._bu = np.zeros(n + n_ineq)
+            self._bl = np.full(n + n_ineq, -np.inf)
 
     def _check(self, H, g, G, h_u, x_l, x_u) -> tuple[str, bool]:
         """(problem, bounds unchanged): the first thing wrong with the data ('' if nothing), and whether the
-        bounds equal those PIQP holds."""
+        bounds equal those PIQP or DAQP holds."""
         shapes = (("H", H, (self.n, self.n)), ("g", g, (self.n,)), ("G", G, (self.n_ineq, self.n)),
                   ("h_u", h_u, (self.n_ineq,)), ("x_l", x_l, (self.n,)), ("x_u", x_u, (self.n,)))
         for name, arr, shape in shapes:
             if arr.shape != shape:
                 return f"{name} has shape {arr.shape}, expected {shape}", False
-        old_l, old_u = self._bounds if self._solver is not None else (x_l[:0], x_u[:0])
+        old_l, old_u = self._bounds if self.solver != "ipm" and self._solver is not None else (x_l[:0], x_u[:0])
         code = _scan(H, g, G, h_u, x_l, x_u, old_l, old_u)
         return _SCAN_PROBLEM.get(code, ""), code == 0
 
-    def solve(self, H, g, G, h_u, x_l, x_u) -> QpResult:
+    def solve(self, H, g, G, h_u, x_l, x_u, *, same_h: bool = False) -> QpResult:
+        """``same_h``: H is the previous solve's, unchanged (DAQP then keeps its factorisation: an update of g and
+        the bounds only; the other solvers ignore it)."""
         H = np.asfortranarray(H, dtype=float)
         g = np.ascontiguousarray(g, dtype=float)
         G = np.asfortranarray(G, dtype=float)
@@ -113,6 +127,8 @@ class DenseQp:
         self.solves += 1
         if self.solver == "ipm":
             return self._solve_ipm(H, g, G, h_u, x_l, x_u)
+        if self.solver == "daqp":
+            return self._solve_daqp(H, g, G, h_u, x_l, x_u, same_bounds, same_h)
         t0 = time.perf_counter()
         if self._solver is None:
             s = piqp.DenseSolver()
@@ -150,3 +166,41 @@ class DenseQp:
         ok = code == SOLVED
         name = STATUS_NAMES[code]
         return QpResult(x, name, ok, int(iters), dt, "" if ok else f"interior point: {name}")
+
+    def _solve_daqp(self, H, g, G, h_u, x_l, x_u, same_bounds, same_h=False) -> QpResult:
+        # DAQP reads rows (C order): H is symmetric, so the transpose of its Fortran-ordered array is H itself, and
+        # a one-row G is both orders; the model keeps pointers to these arrays (no copy) until the next update
+        H = None if same_h and self._solver is not None else H.T
+        n = self.n
+        A = G if self.n_ineq else None     # DAQP's update indexes a 0-row A out of bounds: give it none
+        bu, bl = self._bu, self._bl
+        bu[n:] = h_u
+        t0 = time.perf_counter()
+        model = self._solver
+        if same_bounds:    # the simple bounds in bu and bl are those DAQP holds: only the rows' bounds change
+            flag = model.update(H=H, f=g, A=A, bupper=bu)
+        elif model is None:
+            bu[:n] = x_u
+            bl[:n] = x_l
+            model = daqp.Model()
+            model.settings = {"primal_tol": self.eps, "iter_limit": max(self.max_iter, 2 * (n + self.n_ineq))}
+            flag, _ = model.setup(H, g, G, bu, bl)
+            if flag >= 0:
+                self._solver = model
+                self._bounds = (x_l.copy(), x_u.copy())
+        else:     # the working set of the last solve is kept: the warm start
+            bu[:n] = x_u
+            bl[:n] = x_l
+            flag = model.update(H=H, f=g, A=A, bupper=bu, blower=bl)
+            self._bounds = (x_l.copy(), x_u.copy())
+        if flag < 0:       # H not positive definite (its factorisation failed) or the data refused
+            self._solver = None
+            name = "nonconvex" if flag == -5 else f"setup_failed_{flag}"
+            return QpResult(np.full(n, np.nan), name, False, 0, time.perf_counter() - t0, f"DAQP: {name}")
+        x, _, flag, info = model.solve()
+        dt = time.perf_counter() - t0
+        ok = flag > 0 and math.isfinite(x @ x)     # x @ x: NaN or inf if an entry is (0.3 µs, isfinite().all() 1.5)
+        name = "solved" if ok else DAQP_STATUS.get(flag, f"exitflag_{flag}")
+        if not ok:         # start the next solve from an empty working set, not from this one
+            self._solver = None
+        return QpResult(x, name, ok, int(info["iterations"]), dt, "" if ok else f"DAQP: {name}")

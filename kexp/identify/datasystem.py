@@ -9,13 +9,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
-from ..systems.base import ControlAffineSystem
+from ..systems.base import FormulaFreeSystem
 
 DATA_SYSTEM = "data"   # system.name of a system known only from recorded runs (conf/system/data.yaml)
 
 
 @dataclass(frozen=True)
-class DataSystem(ControlAffineSystem):
+class DataSystem(FormulaFreeSystem):
     """n states, m inputs (m = 0: no input model, a drift-only fit), ``x_eq`` (n,) the equilibrium the model is
     centred on (empty: the origin), ``names`` n state names (empty: x1…xn), ``label`` the name models and logs
     carry.  ``drift`` and ``input_matrix`` raise a one-line ConfigError: there is no formula."""
@@ -44,24 +44,10 @@ class DataSystem(ControlAffineSystem):
         object.__setattr__(self, "x_eq", tuple(float(v) for v in x_eq))
         object.__setattr__(self, "names", names)
 
-    @property
-    def equilibrium(self) -> np.ndarray:
-        return np.asarray(self.x_eq, dtype=float)
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        return self.names
-
     def _no_formula(self, what: str):
         raise ConfigError(f"system {self.name!r} is known only from its data: {what} is unknown; identify from "
                           "forced runs (t, x, u) with identification.inputs=regression, or without inputs (m = 0) for "
                           "a drift-only model")
-
-    def drift(self, x):
-        self._no_formula("F")
-
-    def input_matrix(self, x):
-        self._no_formula("G")
 
 
 def data_inputs(dataset) -> int:

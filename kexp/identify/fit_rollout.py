@@ -54,3 +54,21 @@ def raw_fit_error(fit, dictionary, dataset: PairSource, h: int, x_eq: np.ndarray
         return float("inf")
     denom = np.linalg.norm(truth - x_eq)
     return float(np.linalg.norm(xh - truth) / denom) if denom > 0 else float("nan")
+
+
+def versus_fit(fit, dictionary, dataset: PairSource, model_err: dict, x_eq: np.ndarray, dt: float, *,
+               dropped: bool, regress: bool) -> tuple[dict, str | None]:
+    """({"<h·Δ>_s": {"model": e, "fit": e_fit}}, warning or None): the control model's errors ``model_err``
+    ({steps: relative error}) beside the raw fit's on the same windows, and a warning naming the likely cause
+    when the model is > 10 % worse than its fit (and by > 1 % of the state's excursion)."""
+    out = {f"{h * dt:g}_s": {"model": err, "fit": raw_fit_error(fit, dictionary, dataset, h, x_eq)}
+           for h, err in model_err.items()}
+    name, worst = max(out.items(), key=lambda kv: kv[1]["model"] - 1.1 * kv[1]["fit"])
+    cost = worst["model"] - worst["fit"]
+    if not (cost > 0.1 * worst["fit"] and cost > 0.01):
+        return out, None
+    cause = ("eigen-coordinates were left out (identification.keep / max_residual)" if dropped else
+             "the inputs' continuous bilinear term is first order in u (more forced data helps)" if regress else
+             "the equilibrium shift drops a drift (identification.fix_equilibrium=true)")
+    return out, (f"the control model predicts worse than the fit it comes from: {name.replace('_', ' ')} error "
+                 f"{worst['model']:.1%} against the raw fit's {worst['fit']:.1%}; {cause}")

@@ -22,7 +22,7 @@ from .model import KoopmanBilinearModel
 from .noise_check import check_estimator, fit_iv_source, noise_report
 from .projection import input_matrices, output_matrix_exact, output_matrix_lstsq
 from .regression import fit_bilinear
-from .fit_rollout import raw_fit_error
+from .fit_rollout import versus_fit
 from .quality import eigenfunction_residuals, prediction_error
 
 
@@ -284,18 +284,9 @@ def identify(system: ControlAffineSystem | None, dataset: PairSource, dictionary
     report["prediction_error"] = {"1_step": prediction_error(model, quality_data, 1),
                                   f"{config.prediction_horizon:g}_s": model_err[h_pred]}
     report["prediction_data"] = "held-out" if test is not None else "training"
-    report["prediction_vs_fit"] = {   # what deriving the control model from the fit costs (fit_rollout.py)
-        f"{hh * dataset.dt:g}_s": {"model": err, "fit": raw_fit_error(fit, dictionary, quality_data, hh, x_eq)}
-        for hh, err in model_err.items()}
-    worst = max(report["prediction_vs_fit"].items(), key=lambda kv: kv[1]["model"] - 1.1 * kv[1]["fit"])
-    cost = worst[1]["model"] - worst[1]["fit"]
-    if cost > 0.1 * worst[1]["fit"] and cost > 0.01:   # > 10 % worse and > 1 % of the state's excursion
-        notes.append(f"the control model predicts worse than the fit it comes from: {worst[0].replace('_', ' ')} "
-                     f"error {worst[1]['model']:.1%} against the raw fit's {worst[1]['fit']:.1%}; "
-                     + ("eigen-coordinates were left out (identification.keep / max_residual)"
-                        if report["dropped"] else
-                        "the inputs' continuous bilinear term is first order in u (more forced data helps)"
-                        if regress else "the equilibrium shift drops a drift (identification.fix_equilibrium=true)"))
+    report["prediction_vs_fit"], note = versus_fit(fit, dictionary, quality_data, model_err, x_eq, dataset.dt,
+                                                   dropped=bool(report["dropped"]), regress=regress)
+    notes += [note] if note else []
     far = report["prediction_error"][f"{config.prediction_horizon:g}_s"]
     if not far <= 1.0:   # worse than predicting x_eq, or overflowed: the data did not determine the model
         notes.append(f"the model's {config.prediction_horizon:g} s prediction on the {report['prediction_data']} "

@@ -5,14 +5,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..errors import PlantError
-from ..systems.base import ControlAffineSystem
+from ..systems.base import FormulaFreeSystem
 
 
 @dataclass(frozen=True)
-class PlantSystem(ControlAffineSystem):
+class PlantSystem(FormulaFreeSystem):
     """n, m, x_eq and names of plant ``plant_id`` (``equilibrium`` (n,), ``names`` n strings)."""
 
     plant_id: str = "plant"
@@ -36,21 +34,7 @@ class PlantSystem(ControlAffineSystem):
         object.__setattr__(self, "x_eq", x_eq)
         object.__setattr__(self, "names", names)
 
-    @property
-    def equilibrium(self) -> np.ndarray:
-        return np.asarray(self.x_eq, dtype=float)
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        return self.names
-
     def _no_formula(self, what: str):
         raise PlantError(f"plant {self.plant_id!r} has no formula ({what} is unknown): use what works from data "
                          "(identification.inputs=regression, controller=lmpc, model_lqr or lqr on the plant's "
                          "numerical linearisation)")
-
-    def drift(self, x):
-        self._no_formula("F")
-
-    def input_matrix(self, x):
-        self._no_formula("G")

@@ -20,7 +20,7 @@ from ..errors import ConfigError
 from . import behaviour
 from .policy import POLICIES, ChannelRule, Policy, make_policy
 from .provenance import version_warnings
-from .reader import LogError, RunLog, read_log
+from .reader import LogError, RunLog, log_path, read_log
 from .schema import CHANNELS, WALL_CLOCK_CHANNELS, WALL_CLOCK_FIELDS
 
 _INDEX = re.compile(r"\[\d+\]")
@@ -222,11 +222,11 @@ def _derived(la: RunLog, lb: RunLog, rule: ChannelRule, usage):
 
 def diff_logs(a: RunLog | str | Path, b: RunLog | str | Path, *, atol: float = 0.0, rtol: float = 0.0,
               include_wall_clock: bool = False, policy: str | Policy = "exact") -> DiffResult:
-    """Compare log ``a`` with log ``b`` (paths or RunLog).  ``policy``: "exact" (with optional entry-wise
+    """Compare log ``a`` with log ``b`` (RunLog, or paths: .mcap files or run folders, :func:`log_path`).  ``policy``: "exact" (with optional entry-wise
     ``atol``/``rtol``), "portable" (the cross-machine policy of policy.py), or a Policy."""
     pol = policy if isinstance(policy, Policy) else make_policy(policy, rtol=rtol, atol=atol)
-    la = a if isinstance(a, RunLog) else read_log(a)
-    lb = b if isinstance(b, RunLog) else read_log(b)
+    la = a if isinstance(a, RunLog) else read_log(log_path(a))
+    lb = b if isinstance(b, RunLog) else read_log(log_path(b))
     for log in (la, lb):   # two such logs were "equal": no verdict can come from nothing
         if not any(log.channels.values()):
             raise LogError(f"{log.path} holds no message ({log.warning or 'an empty log'}): nothing to compare")
@@ -276,10 +276,10 @@ def diff_logs(a: RunLog | str | Path, b: RunLog | str | Path, *, atol: float = 0
 
 
 def main(argv=None) -> int:
-    p = Parser(prog="kexp-diff", description="Compare two kexp run logs (MCAP). "
-               "Exit 0: equal, 1: different, 2: unreadable or bad arguments.")
-    p.add_argument("a")
-    p.add_argument("b")
+    p = Parser(prog="kexp-diff", description="Compare two kexp run logs (MCAP), each given as its .mcap file or its "
+               "run folder. Exit 0: equal, 1: different, 2: unreadable or bad arguments.")
+    p.add_argument("a", help="a run.mcap, or a run folder holding one")
+    p.add_argument("b", help="a run.mcap, or a run folder holding one")
     p.add_argument("--policy", choices=POLICIES, default="exact",
                    help="exact (default): every number equal, or within --atol/--rtol entry by entry; portable: "
                         "what holds across machines (README, 'Golden recordings')")

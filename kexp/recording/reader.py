@@ -38,6 +38,23 @@ class RunLog:
         return bool(s and s.get("completed"))
 
 
+RUN_LOG = "run.mcap"   # the log a kexp run writes into its folder (logging.mcap)
+
+
+def log_path(source: str | Path) -> Path:
+    """The run log a command was given (kexp-diff, kexp-figures, the pytest plugin): ``source`` itself when it is
+    not a folder (an .mcap file; :func:`read_log` says what is wrong with anything else), else the :data:`RUN_LOG`
+    of that run folder.  A folder without one raises :class:`LogError` in one line."""
+    path = Path(source)
+    if not path.is_dir():
+        return path
+    log = path / RUN_LOG
+    if not log.is_file():
+        raise LogError(f"no run log at {log} (pass a run folder holding {RUN_LOG}, or an .mcap file; a run with "
+                       "logging.mcap=false writes none)")
+    return log
+
+
 def read_log(path: str | Path) -> RunLog:
     """Messages of every channel in log-time order.  A file cut short (killed writer) yields what its complete
     chunks hold, with ``truncated=True`` and a warning; a file that is not MCAP, or one past the decompression

@@ -72,6 +72,31 @@ class ControlAffineSystem:
         return f"{self.name} (n={self.n}, m={self.m})"
 
 
+@dataclass(frozen=True)
+class FormulaFreeSystem(ControlAffineSystem):
+    """A system known without a formula (a plant kexp does not simulate, recorded runs): what identification, the
+    CLF and the LMPC read — n, m, ``equilibrium`` from the field ``x_eq``, ``state_names`` from ``names`` — while
+    :meth:`drift` and :meth:`input_matrix` raise the subclass's one-line error (:meth:`_no_formula`), so a stage that
+    needs F or G says so instead of computing with a stub.  Subclasses declare the fields and validate them."""
+
+    @property
+    def equilibrium(self) -> np.ndarray:
+        return np.asarray(self.x_eq, dtype=float)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return self.names
+
+    def _no_formula(self, what: str):
+        raise NotImplementedError
+
+    def drift(self, x):
+        self._no_formula("F")
+
+    def input_matrix(self, x):
+        self._no_formula("G")
+
+
 def check_system(system: ControlAffineSystem, *, n_probe: int = 8, seed: int = 0) -> None:
     """Evaluate F and G on a few probe states and raise a clear error for wrong shapes or non-finite output."""
     n, m = system.n, system.m
