@@ -29,6 +29,7 @@ import os
 import re
 import secrets
 import tempfile
+import warnings
 import weakref
 from pathlib import Path
 
@@ -158,6 +159,7 @@ class ParsedStore:
             self._tmp = tmp
             directory = tmp.name
         self.dir = Path(directory)
+        self._fallback: "ParsedStore | None" = None
 
     def paths(self, digest: str) -> tuple[Path, Path]:
         stem = f"csv-{digest[:40]}-v{PARSE_VERSION}"
@@ -177,13 +179,27 @@ class ParsedStore:
 
     def csv(self, f: Path, digest: str | None = None) -> tuple[list[str], np.ndarray]:
         """(header, values (rows, columns) read-only, memory-mapped) of the CSV file ``f`` whose bytes have the
-        SHA-256 ``digest`` (None: computed here): read from its entry, or parsed once into it."""
+        SHA-256 ``digest`` (None: computed here): read from its entry, or parsed once into it.  A folder that
+        cannot be created or written gives one warning, and this store then parses into the process's private
+        temporary store (nothing is lost; only the sharing with other processes)."""
         digest = digest or file_digest(f)
+        if self._fallback is not None:
+            return self._fallback.csv(f, digest)
         found = self._read(digest) if self.paths(digest)[0].exists() else None
         if found is not None:
             _COUNTS["hits"] += 1
             return found
-        self.dir.mkdir(parents=True, exist_ok=True)
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            probe = self.dir / f".probe.{os.getpid()}.{secrets.token_hex(4)}"
+            probe.touch()
+            probe.unlink()
+        except OSError as exc:
+            warnings.warn(f"parsed-data cache {self.dir}: cannot write there ({type(exc).__name__}: "
+                          f"{exc.strerror or exc}); CSV files are parsed into a temporary folder instead and not "
+                          "shared with other runs (give a writable cache.dir)", RuntimeWarning, stacklevel=2)
+            self._fallback = private_store()
+            return self._fallback.csv(f, digest)
         npy, meta = self.paths(digest)
         tag = f".{os.getpid()}.{secrets.token_hex(4)}.tmp"
         tmp_npy, tmp_meta = npy.with_name(npy.name + tag), meta.with_name(meta.name + tag)
