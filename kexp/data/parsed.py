@@ -130,9 +130,9 @@ def _fast(chunk: bytes, pattern: re.Pattern, width: int):
         return None, 0
     body = text[:-1] if text.endswith("\n") else text   # a block ends with its last line's "\n" (but at the end)
     lines = body.split("\n")
-    if not all(map(pattern.fullmatch, lines)):
+    if max(map(len, lines)) + 1 > LINE_LIMIT:   # first: a line over the limit (characters ≤ bytes), slow path
         return None, 0
-    if max(map(len, lines)) + 1 > LINE_LIMIT:   # a line over the limit (in characters ≤ bytes): the slow path
+    if not all(map(pattern.fullmatch, lines)):
         return None, 0
     cells = body.replace("\r", "").replace("\n", ",").split(",")
     values = np.fromiter(map(float, cells), dtype=float, count=len(cells)).reshape(len(lines), width)
