@@ -227,14 +227,26 @@ def narrow_bounds(spec, plant, echo=print):
     return dataclasses.replace(spec, u_min=as_cfg(lo), u_max=as_cfg(hi))
 
 
-def read_data_files(system, data_cfg: DataConfig):
+def read_data_files(system, data_cfg: DataConfig, cache_cfg: dict | None = None):
     """The recorded runs ``data_cfg.source`` names, for ``system``, streamed: one pass checks every file and
-    keeps counts, bounds and digest; identification then reads one file at a time (kexp.data.streaming)."""
+    keeps counts, bounds and digest; identification then reads one file at a time (kexp.data.streaming).  CSV
+    files are parsed once into ``<cache.dir>/parsed`` (kexp.data.parsed), shared by later runs and a sweep's
+    jobs; with ``cache.enabled=false`` (or no ``cache_cfg``) into a temporary folder of this process."""
     from ..data.streaming import open_runs
     src = data_cfg.source
     return open_runs(src.path, n=system.n, m=system.m, dt=data_cfg.dt, format=src.format, pair_rule=data_cfg.pairs,
                      system_name=system.name, drift=system.drift, region_filter=data_cfg.filter,
-                     x_eq=system.equilibrium)
+                     x_eq=system.equilibrium, parsed_dir=parsed_dir(cache_cfg))
+
+
+def parsed_dir(cache_cfg: dict | None):
+    """``<cache.dir>/parsed`` (cache.dir None: $KEXP_CACHE_DIR or ~/.cache/kexp), or None when the cache is off."""
+    if not cache_cfg or not bool(cache_cfg.get("enabled", True)):
+        return None
+    from pathlib import Path
+
+    from .cache import default_cache_dir
+    return Path(cache_cfg.get("dir") or default_cache_dir()) / "parsed"
 
 
 def check_file_data(dataset, ident_cfg, dictionary_size: int) -> None:

@@ -287,7 +287,7 @@ def _prepare(cfg: Any, out_dir: Path, echo, auto_progress: bool | None, stack: c
     if not looped:
         echo(STOP_LINE)
     # recorded runs (data.source.kind=files) are read and checked now; their bounding box is the data region
-    file_data = read_data_files(system, data_cfg) if data_cfg.source.kind == "files" else None
+    file_data = read_data_files(system, data_cfg, dict(cfg.get("cache") or {})) if data_cfg.source.kind == "files" else None
     clf_cfg = build_clf(cfg["clf"])
     data_noise = build_data_noise(cfg["data"], system.n)
     data_smooth = build_data_smoothing(cfg["data"])

@@ -193,10 +193,12 @@ def _read_mcap(f: Path, n: int, m: int, system_name: str | None = None):
     return t, arr("x", n, "n"), arr("u", m, "m")[:-1], log.warning
 
 
-def read_run(f: Path, fmt: str, n: int, m: int, system_name: str | None = None):
+def read_run(f: Path, fmt: str, n: int, m: int, system_name: str | None = None, store=None, digest=None):
     """(t (T+1,), x (T+1, n), u (T, m) or None, warning) of one run, read strictly (:mod:`kexp.data.parse`): its
     layout is checked first (NPZ: from the arrays' headers, before any is loaded), then its values; the warning
-    says if an MCAP log was cut short or its run did not finish (its steps up to there are read)."""
+    says if an MCAP log was cut short or its run did not finish (its steps up to there are read).  A CSV file is
+    read through ``store`` (a :class:`~kexp.data.parsed.ParsedStore`) when given: parsed once, then memory-mapped
+    (``digest``: the SHA-256 of its bytes, if known)."""
     if fmt == "npz":
         has_u = _npz_layout(f, n, m)
         try:
@@ -209,7 +211,10 @@ def read_run(f: Path, fmt: str, n: int, m: int, system_name: str | None = None):
             check_values(f, k, a)
         return arrays["t"], arrays["x"], arrays.get("u"), ""
     if fmt == "csv":
-        header, data, _lines = read_csv(f)
+        if store is not None:   # parsed once into a memory-mapped entry (kexp.data.parsed)
+            header, data = store.csv(f, digest)
+        else:
+            header, data, _lines = read_csv(f)
         has_u = _check_columns(f, header, n, m)
         if data.shape[0] < 2:
             raise DataError(f"{f}: {data.shape[0]} data row(s); a run needs at least 2 samples")

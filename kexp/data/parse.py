@@ -90,6 +90,30 @@ def _cell(f: Path, text: str, line: int, column: str) -> float:
     return v
 
 
+def check_line(f: Path, number: int, offset: int, raw: bytes) -> str:
+    """The text of one raw CSV line (line ``number``, 1-based, at byte ``offset``), its line ending removed, after
+    the checks of the module docstring (NUL byte, length, UTF-8, stray carriage return)."""
+    nul = raw.find(b"\0")
+    if nul >= 0:
+        raise DataError(f"{f}: line {number} holds a NUL byte (byte offset {offset + nul}): a binary file, "
+                        "not CSV text")
+    if len(raw) > LINE_LIMIT:
+        raise DataError(f"{f}: line {number} is longer than {LINE_LIMIT} bytes (64 KiB), the limit for one "
+                        "line; is it a CSV file of recorded runs?")
+    skip = 3 if number == 1 and raw.startswith(b"\xef\xbb\xbf") else 0
+    try:
+        text = raw[skip:].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        bad = raw[skip + exc.start]
+        raise DataError(f"{f}: line {number}, byte offset {offset + skip + exc.start}: byte 0x{bad:02x} is "
+                        "not UTF-8; save the file as UTF-8") from None
+    text = text[:-2] if text.endswith("\r\n") else text[:-1] if text.endswith("\n") else text
+    if "\r" in text:
+        raise DataError(f"{f}: line {number} holds a carriage return inside it (old Mac line endings?); "
+                        "use \\n or \\r\\n line endings")
+    return text
+
+
 def _lines(f: Path):
     """(1-based line number, text without its line ending) of each line of a UTF-8 text file, read one line at a
     time with at most LINE_LIMIT bytes each."""
@@ -100,31 +124,23 @@ def _lines(f: Path):
             if not raw:
                 return
             number += 1
-            nul = raw.find(b"\0")
-            if nul >= 0:
-                raise DataError(f"{f}: line {number} holds a NUL byte (byte offset {offset + nul}): a binary file, "
-                                "not CSV text")
-            if len(raw) > LINE_LIMIT:
-                raise DataError(f"{f}: line {number} is longer than {LINE_LIMIT} bytes (64 KiB), the limit for one "
-                                "line; is it a CSV file of recorded runs?")
-            skip = 3 if number == 1 and raw.startswith(b"\xef\xbb\xbf") else 0
-            try:
-                text = raw[skip:].decode("utf-8")
-            except UnicodeDecodeError as exc:
-                bad = raw[skip + exc.start]
-                raise DataError(f"{f}: line {number}, byte offset {offset + skip + exc.start}: byte 0x{bad:02x} is "
-                                "not UTF-8; save the file as UTF-8") from None
+            text = check_line(f, number, offset, raw)
             offset += len(raw)
-            text = text[:-2] if text.endswith("\r\n") else text[:-1] if text.endswith("\n") else text
-            if "\r" in text:
-                raise DataError(f"{f}: line {number} holds a carriage return inside it (old Mac line endings?); "
-                                "use \\n or \\r\\n line endings")
             yield number, text
 
 
 def _header_name(cell: str) -> str:
     s = cell.strip(" \t")
     return s[1:-1] if len(s) >= 2 and s[0] == s[-1] == '"' else s
+
+
+def parse_header(f: Path, text: str) -> list[str]:
+    """The column names of the header line ``text`` (quotes removed); a DataError for duplicate names."""
+    header = [_header_name(c) for c in text.split(",")]
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise DataError(f"{f}: duplicate column name(s) {dup} in the header; name each column once")
+    return header
 
 
 def read_csv(f: Path) -> tuple[list[str], np.ndarray, list[int]]:
@@ -136,31 +152,33 @@ def read_csv(f: Path) -> tuple[list[str], np.ndarray, list[int]]:
     header = None
     for _number, text in lines:
         if text.strip(" \t"):
-            header = [_header_name(c) for c in text.split(",")]
+            header = parse_header(f, text)
             break
     if header is None:
         raise DataError(f"{f}: empty CSV file; expected a header row t,x1,…,xn[,u1,…,um]")
-    dup = sorted({h for h in header if header.count(h) > 1})
-    if dup:
-        raise DataError(f"{f}: duplicate column name(s) {dup} in the header; name each column once")
     width = len(header)
-    t_col = header.index("t") if "t" in header else None
     values, rows = array("d"), []
     for number, text in lines:
         if not text.strip(" \t"):
             continue
-        cells = text.split(",")
-        if len(cells) != width:
-            raise DataError(f"{f}: line {number}: data row {len(rows) + 1} has {len(cells)} cells, the header "
-                            f"{width}; give one cell per column (empty for the last row's u)")
-        row = list(map(float, cells)) if _ROW.fullmatch(text) else None
-        if row is None or max(map(abs, row)) > VALUE_LIMIT:   # a missing or a bad cell: cell by cell
-            row = [_cell(f, c, number, h) for c, h in zip(cells, header)]
-            if t_col is not None and np.isnan(row[t_col]):
-                raise DataError(f"{f}: line {number}, column t: no time; every sample needs its time")
-        values.extend(row)
+        values.extend(parse_row(f, text, number, header, len(rows) + 1))
         rows.append(number)
     return header, np.frombuffer(values, dtype=float).reshape(len(rows), width), rows
+
+
+def parse_row(f: Path, text: str, number: int, header: list[str], row_index: int) -> list[float]:
+    """The values of the non-blank data row ``text`` (line ``number``, data row ``row_index``, 1-based) with NaN
+    for missing cells; a one-line DataError naming line and column for a wrong cell count or a bad cell."""
+    cells = text.split(",")
+    if len(cells) != len(header):
+        raise DataError(f"{f}: line {number}: data row {row_index} has {len(cells)} cells, the header "
+                        f"{len(header)}; give one cell per column (empty for the last row's u)")
+    row = list(map(float, cells)) if _ROW.fullmatch(text) else None
+    if row is None or max(map(abs, row)) > VALUE_LIMIT:   # a missing or a bad cell: cell by cell
+        row = [_cell(f, c, number, h) for c, h in zip(cells, header)]
+        if "t" in header and np.isnan(row[header.index("t")]):
+            raise DataError(f"{f}: line {number}, column t: no time; every sample needs its time")
+    return row
 
 
 def check_values(f: Path, name: str, a: np.ndarray) -> None:

@@ -23,14 +23,16 @@ from .checks import require_path, short, state_vector
 from .collect import RegionFilter
 from .dataset import PAIR_RULES, DataReport, Dataset
 from .files import FORMATS, DataBounds, _check_time, list_runs, read_run
+from .parse import check_file_size
 from .noise import DATA_NOISE, noise_rng
 from .runs import Run, SampleStats, count_pairs, pair_chunks, sample_stats, split_indices
 from .smoothing import segments, smooth_run
 
 
-def _load(f: Path, fmt: str, n: int, m: int, dt: float, system_name, region_filter, x_eq):
-    """(x (T+1, n) NaN where masked, valid (T+1,), u (T, m) or None, warning, NaN rows, dropped) of one file."""
-    t, xi, ui, warning = read_run(f, fmt, n, m, system_name)
+def _load(f: Path, fmt: str, n: int, m: int, dt: float, system_name, region_filter, x_eq, store=None, digest=None):
+    """(x (T+1, n) NaN where masked, valid (T+1,), u (T, m) or None, warning, NaN rows, dropped) of one file (a CSV
+    file through ``store``, :mod:`kexp.data.parsed`, when given)."""
+    t, xi, ui, warning = read_run(f, fmt, n, m, system_name, store, digest)
     _check_time(f, t, dt)
     ok = np.all(np.isfinite(xi), axis=1)
     if ui is not None:
@@ -75,6 +77,8 @@ class RecordedRuns:
     noise_states: tuple | None = None
     cached_stats: tuple = field(default=())   # SampleStats of the clean full set, about 0 and x_eq
     smooth: object = None                      # a SmoothConfig applied after the noise, run by run
+    digests: tuple = ()                        # SHA-256 of each file's bytes (the parsed entries' names)
+    store: object = None                       # the ParsedStore CSV files are read through (kexp.data.parsed)
 
     @property
     def n_traj(self) -> int:
@@ -94,7 +98,8 @@ class RecordedRuns:
     def runs(self) -> Iterator[Run]:
         """The runs one at a time, read from their files (length T+1 of each run, not padded)."""
         for j, (f, fmt) in enumerate(zip(self.files, self.formats)):
-            x, ok, u, *_ = _load(f, fmt, self.n, self.m, self.dt, self.expect_system, self.region_filter, self.x_eq)
+            x, ok, u, *_ = _load(f, fmt, self.n, self.m, self.dt, self.expect_system, self.region_filter, self.x_eq,
+                                 self.store, self.digests[j] if self.digests else None)
             if self.has_inputs and u is None:
                 u = np.zeros((x.shape[0] - 1, self.m))
             fx = None
@@ -116,6 +121,7 @@ class RecordedRuns:
         traj = np.asarray(traj, dtype=int)
         return replace(self, files=tuple(self.files[i] for i in traj), formats=tuple(self.formats[i] for i in traj),
                        forced_runs=self.forced_runs[traj],
+                       digests=tuple(self.digests[i] for i in traj) if self.digests else (),
                        pairs_runs=self.pairs_runs[traj], cached_stats=(),
                        noise_states=None if self.noise_states is None else tuple(self.noise_states[i] for i in traj))
 
@@ -169,9 +175,13 @@ class RecordedRuns:
 
 
 def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "auto", pair_rule: str = "next",
-              system_name: str | None = None, drift=None, region_filter=None, x_eq=None) -> RecordedRuns:
+              system_name: str | None = None, drift=None, region_filter=None, x_eq=None,
+              parsed_dir: str | Path | None = None) -> RecordedRuns:
     """The recorded runs at ``path`` as a streamed :class:`RecordedRuns`, after one pass that reads and checks
-    every file (the arguments and checks as :func:`read_runs`)."""
+    every file (the arguments and checks as :func:`read_runs`).  CSV files are parsed once, into memory-mapped
+    entries in ``parsed_dir`` (None: a temporary folder of this process), which every later pass reads
+    (:mod:`kexp.data.parsed`); an entry already there (an earlier run, another job of a sweep) is not parsed
+    again."""
     _check_args("open_runs", path, n, m, dt, format, pair_rule, system_name, drift, region_filter, x_eq)
     files, formats = list_runs(path, format)
     x_eq = np.zeros(n) if x_eq is None else np.asarray(x_eq, float).reshape(n)
@@ -181,12 +191,22 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
     about = (np.zeros(n), x_eq)
     sums = [np.zeros(n), np.zeros(n)]
     count, low, high, absmax = 0, np.full(n, np.inf), np.full(n, -np.inf), np.zeros(n)
+    store = None
+    if "csv" in formats:
+        from .parsed import ParsedStore, private_store
+        store = private_store() if parsed_dir is None else ParsedStore(parsed_dir)
+    file_digests = []
     for i, (f, fmt) in enumerate(zip(files, formats)):
-        x, ok, u, warning, nan_rows, dropped = _load(f, fmt, n, m, dt, system_name, region_filter, x_eq)
-        digest.update(f.name.encode())   # after the checks: a file past the size limit is never read whole
+        check_file_size(f)   # a file past the size limit is never read whole
+        own = hashlib.sha256()
+        digest.update(f.name.encode())
         with open(f, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 16), b""):
                 digest.update(block)
+                own.update(block)
+        file_digests.append(own.hexdigest())
+        x, ok, u, warning, nan_rows, dropped = _load(f, fmt, n, m, dt, system_name, region_filter, x_eq, store,
+                                                     file_digests[-1])
         has_inputs |= u is not None
         n_nan += nan_rows
         all_lengths.append(x.shape[0])
@@ -222,7 +242,8 @@ def open_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "aut
                         dt=dt, pair_rule=pair_rule, system_name=system_name or "recorded", has_inputs=has_inputs,
                         t_len=t_len, forced_runs=np.array(forced, bool),
                         pairs_runs=np.array(pairs, dtype=np.int64), report=report, region_filter=region_filter,
-                        x_eq=x_eq, drift=drift, expect_system=system_name, cached_stats=stats)
+                        x_eq=x_eq, drift=drift, expect_system=system_name, cached_stats=stats,
+                        digests=tuple(file_digests[i] for i in kept), store=store)
 
 
 def read_runs(path: str | Path, *, n: int, m: int, dt: float, format: str = "auto", pair_rule: str = "next",
