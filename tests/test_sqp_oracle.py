@@ -251,3 +251,18 @@ def test_the_lqr_first_guess_keeps_a_long_horizon_in_the_stabilising_family():
     with pytest.raises(ConfigError, match=r"controller.init='warm'; valid: \('lqr', 'zero'\)"):
         build_controller_spec({"kind": "nmpc", "init": "warm"})
     assert build_controller_spec({"kind": "nmpc"}).init == "lqr"
+
+
+def test_a_fresh_oracle_forms_its_own_h_at_the_first_step():
+    """The constructor's warm-up solve must not leave its H behind for the first real step (hessian='kept'): a
+    fresh oracle takes the path of one reset after other work (left behind, the warm-up's H took 8 iterations
+    instead of 6 here)."""
+    x0 = np.array([1.5, -1.0])
+    fresh = SqpOracle(VanDerPol(), None, -5, 5, horizon_steps=40, dt=0.01)
+    assert fresh._h_valid is False
+    used = SqpOracle(VanDerPol(), None, -5, 5, horizon_steps=40, dt=0.01)
+    used.step(np.array([-0.5, 0.8]))
+    used.reset()
+    a, b = fresh.step(x0), used.step(x0)
+    assert a.iterations == b.iterations
+    assert abs(fresh.last_objective - used.last_objective) <= 1e-12 * used.last_objective

@@ -87,10 +87,12 @@ class SqpOracle(TrueModelOracle):
         self._qp = DenseQp(self.nu, 0, eps=1e-10, max_iter=1000, solver="daqp")
         self._G0, self._h0 = np.zeros((0, self.nu), order="F"), np.zeros(0)
         self._lo, self._hi = np.tile(self.u_min, nb), np.tile(self.u_max, nb)
-        self.reset()
-        # compile (or load) the kernels now, not in the first control step
+        # compile (or load) the kernels now, not in the first control step; then reset, so that the first step
+        # forms its own H instead of keeping the warm-up's
+        self._h_valid = False
         self._solve(self.x_eq.copy(), np.zeros((nb, m)), 1)
         self.simulate(self.x_eq, np.zeros((nb, m)))
+        self.reset()
 
     def reset(self) -> None:
         super().reset()
