@@ -117,6 +117,15 @@ def test_the_experiment_and_the_results_rooms_do_not_import_each_other():
     assert crossing == []
 
 
+def test_the_controllers_do_not_import_the_experiment_command():
+    """kexp.control (the controllers, the compile cache) sits below kexp.app: the cache folder they share comes from
+    kexp.cachedir, not from the app (a package-level circle app -> control -> app before)."""
+    g = graph()
+    up = sorted((m, t) for m, ts in g.items() for t in ts if m.startswith("kexp.control") and t.startswith("kexp.app"))
+    assert up == []
+    assert "kexp.cachedir" in g["kexp.control.jit_cache"] and "kexp.cachedir" in g["kexp.app.cache"]
+
+
 def test_results_cli_is_the_only_module_that_imports_the_tables():
     """Inside kexp.results the dispatch is one way: only cli imports table, robustness, plants_view and reproduce."""
     g = graph()

@@ -245,7 +245,7 @@ def parsed_dir(cache_cfg: dict | None):
         return None
     from pathlib import Path
 
-    from .cache import default_cache_dir
+    from ..cachedir import default_cache_dir
     return Path(cache_cfg.get("dir") or default_cache_dir()) / "parsed"
 
 

@@ -27,6 +27,7 @@ from typing import Callable, TypeVar
 
 import numpy as np
 
+from ..cachedir import default_cache_dir
 from ..errors import ConfigError
 from ..recording.schema import plain
 from .lock import installed_version
@@ -34,10 +35,6 @@ from .lock import installed_version
 T = TypeVar("T")
 
 KEY_MEMBER = "cache_key"   # the .npz member that holds an entry's key (a JSON string)
-
-
-def default_cache_dir() -> Path:
-    return Path(os.environ.get("KEXP_CACHE_DIR") or Path.home() / ".cache" / "kexp")
 
 
 def key_of(*parts) -> str:

@@ -40,7 +40,7 @@ def cache_dir() -> Path:
     from importlib.metadata import version
 
     from .. import __version__
-    from ..app.cache import default_cache_dir
+    from ..cachedir import default_cache_dir
     tag = f"{__version__}-py{sys.version_info[0]}.{sys.version_info[1]}-numba{version('numba')}"
     return default_cache_dir() / "numba" / tag
 
