@@ -9,4 +9,5 @@ from pathlib import Path
 
 
 def default_cache_dir() -> Path:
+    """``$KEXP_CACHE_DIR`` if set (non-empty), else ``~/.cache/kexp``; not created here."""
     return Path(os.environ.get("KEXP_CACHE_DIR") or Path.home() / ".cache" / "kexp")
